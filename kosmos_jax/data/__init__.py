@@ -1,0 +1,1 @@
+"""Data sources: real Cornell / Jacquard readers, splits and synthetic Cornell-format scenes."""

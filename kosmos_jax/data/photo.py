@@ -1,0 +1,44 @@
+"""The record every reader produces and every later stage consumes."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+
+@dataclasses.dataclass
+class Photo:
+    """One labelled photo.
+
+    id: the dataset's own name ("pcd0100" for Cornell, "0_2f48..." for Jacquard).
+    rgb: [H, W, 3] uint8, RGB order.
+    depth: [H, W] float32 or None.
+    grasps: [N, 5] float64 positive grasps (x, y, w, h, theta) in photo pixels, file order, NaN
+      rectangles already dropped.
+    negatives: [K, 5] float64 negative grasps (Cornell's cneg.txt), possibly empty.
+    object_id: the physical object's id (Cornell's z.txt), or None when unknown.
+    category: the object's category name, or None.
+    annotations: words about the object from an annotator (name, colour, shape, purpose,
+      strategy, parts aligned with `grasps`, ...); empty when none was attached.
+    nan_dropped: how many rectangles of the file had a NaN corner and were dropped.
+    """
+
+    id: str
+    rgb: np.ndarray
+    depth: np.ndarray | None
+    grasps: np.ndarray
+    negatives: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 5)))
+    object_id: int | None = None
+    category: str | None = None
+    annotations: dict[str, Any] = dataclasses.field(default_factory=dict)
+    nan_dropped: int = 0
+
+    @property
+    def height(self) -> int:
+        return int(self.rgb.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.rgb.shape[1])
