@@ -157,8 +157,8 @@ def parse_grasp(text: str, representation: str = "xya", angle_code: bool = True,
         box = np.array([float(v) for v in match.groups()])
         if box[2] < box[0] or box[3] < box[1]:
             return _failure("bounding box corners in the wrong order")
-        if box.min() < 0 or box.max() > image_size:
-            return _failure(f"bounding box {box.tolist()} outside the {image_size} image")
+        if box.min() < -image_size or box.max() > 2 * image_size:
+            return _failure(f"bounding box {box.tolist()} far outside the {image_size} image")
         x, y = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
         w, h = _box_to_grasp_size(box, theta)
     else:
