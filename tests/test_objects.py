@@ -1,0 +1,54 @@
+"""Cornell's z.txt object map."""
+
+import shutil
+
+import pytest
+
+from kosmos_jax.data import cornell, objects
+
+
+def test_real_map_deduplicated(cornell_root):
+    path = cornell_root / "processedData" / "z.txt"
+    lines = [l.split() for l in path.read_text().splitlines() if l.strip()]
+    mapping = objects.read_object_map(path)
+    assert len(lines) == 7037  # one per labelled rectangle of the old round
+    assert len(mapping) == len({l[0] for l in lines}) == 1035
+    assert all(photo_id in mapping for photo_id in cornell.FULL_SET_IDS)
+    for image, object_id, category, _ in lines[::97]:
+        assert mapping[f"pcd{image}"] == (int(object_id), category)
+    assert mapping["pcd0000"] == (0, "Aluminum_Can")
+
+
+def test_found_under_root_or_flat(tmp_path, cornell_root):
+    assert objects.find_object_map(cornell_root) == cornell_root / "processedData" / "z.txt"
+    assert objects.find_object_map(tmp_path) is None
+    shutil.copy(cornell_root / "processedData" / "z.txt", tmp_path)
+    assert objects.find_object_map(tmp_path) == tmp_path / "z.txt"
+
+
+def test_reader_attaches_or_not(tmp_path, cornell_root):
+    shutil.copy(cornell_root / "01" / "pcd0100cpos.txt", tmp_path)
+    assert cornell.load_photos(tmp_path, load_images=False)[0].object_id is None
+    (tmp_path / "map.txt").write_text("0100 7 Mug pcdb_0001\n")
+    photo = cornell.load_photos(tmp_path, load_images=False, object_map=tmp_path / "map.txt")[0]
+    assert (photo.object_id, photo.category) == (7, "Mug")
+    photo = cornell.load_photos(tmp_path, load_images=False, object_map=None)[0]
+    assert photo.object_id is None
+
+
+@pytest.mark.parametrize("text, line", [
+    ("0100 1 Mug pcdb_0001\n0101 1 Mug\n", 2),
+    ("0100 1 Mug pcdb_0001\n\nx100 1 Mug pcdb_0001\n", 3),
+    ("0100 1 Mug pcdb_0001\n0100 2 Bowl pcdb_0001\n", 2),  # one image, two objects
+])
+def test_bad_lines_name_file_and_line(tmp_path, text, line):
+    path = tmp_path / "z.txt"
+    path.write_text(text)
+    with pytest.raises(objects.ObjectMapFormatError) as error:
+        objects.read_object_map(path)
+    assert str(path) in str(error.value) and f"line {line}" in str(error.value)
+
+
+def test_repeated_identical_lines_are_one_entry():
+    mapping = objects.parse_object_map("0100 1 Mug b\r\n0100 1 Mug b\r\n0101 2 Bowl b")
+    assert mapping == {"pcd0100": (1, "Mug"), "pcd0101": (2, "Bowl")}
