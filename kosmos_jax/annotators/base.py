@@ -1,0 +1,63 @@
+"""ObjectWords: what an annotator knows about the object of one photo.
+
+Every annotator (the KOSMOS-E file, the synthetic scenes' metadata, rules over pixels, a VLM)
+returns one of these; the instruction builders consume nothing else.
+
+Fields hold the words that fill the templates of `kosmos_jax.instruct.kinds`:
+  name "remote control", colour "black" or "green, yellow, and silver", shape "rectangular",
+  purpose "controlling electronic devices wirelessly", strategy the whole strategy text,
+  parts one part phrase per grasp ("middle section"), aligned with the photo's grasps.
+`sentences` holds whole instruction sentences where the annotator has them (kind -> sentence,
+and "part" -> a tuple with one sentence per grasp); they are used verbatim instead of a template.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from typing import Mapping
+
+WORD_KINDS = ("name", "colour", "shape", "purpose", "strategy")
+
+
+class MissingWordsError(ValueError):
+    """A photo has no words for the requested instruction kind."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectWords:
+    name: str | None = None
+    colour: str | None = None
+    shape: str | None = None
+    purpose: str | None = None
+    strategy: str | None = None
+    parts: tuple[str | None, ...] = ()
+    sentences: Mapping[str, object] = dataclasses.field(default_factory=dict)
+
+    def has(self, kind: str) -> bool:
+        if kind == "part":
+            return any(self.parts) or any(self.sentences.get("part") or ())
+        return getattr(self, kind, None) is not None or bool(self.sentences.get(kind))
+
+
+def require(words: ObjectWords | None, kind: str, photo_id: str) -> ObjectWords:
+    """`words` if it can make an instruction of `kind`, else an error naming the photo and kind."""
+    if words is None:
+        raise MissingWordsError(f"photo {photo_id!r} has no annotation at all; cannot make a {kind!r} instruction")
+    if not words.has(kind):
+        raise MissingWordsError(f"photo {photo_id!r} has no {kind!r} words; cannot make a {kind!r} instruction")
+    return words
+
+
+def normalise_text(text: str) -> str:
+    """Lower case, single spaces, no trailing full stop: the form compared for ambiguity."""
+    return re.sub(r"\s+", " ", str(text)).strip().rstrip(".").strip().lower()
+
+
+_COLOUR_FILLER = {"and", "with", "details", "detail", "accents", "accent", "a", "an", "the", "of", "some", "object"}
+
+
+def colour_terms(colour: str) -> frozenset[str]:
+    """The colour words of a colour phrase: "green, yellow, and silver" -> {green, yellow, silver}."""
+    tokens = re.findall(r"[a-z]+(?:-[a-z]+)?", normalise_text(colour))
+    return frozenset(t for t in tokens if t not in _COLOUR_FILLER)
