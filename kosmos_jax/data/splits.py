@@ -1,0 +1,167 @@
+"""Cross-validation folds, decided over photo ids BEFORE any augmentation (DESIGN.md section 3).
+
+Two protocols:
+- honest (default): image-wise folds are a seeded permutation of the PHOTOS; object-wise folds
+  group photos by physical object id (Cornell's z.txt), so no object is in two folds, and balance
+  the folds by photo count.
+- paper: what KOSMOS-E's public code does (data/utils/data/cornell_data.py,
+  generate_dataloader_five_fold_cross_validation). It folds the AUGMENTED samples: the sorted file
+  list of the augmented set (`copies_per_photo` samples per photo, 9 in its 885 * 9 = 7965 set),
+  shuffled with numpy's legacy `np.random.seed(123); np.random.shuffle` for image-wise ("IW"), so
+  copies of a test photo land in training; and cut into contiguous blocks of that sorted list,
+  unshuffled, for "object-wise" ("OW"). Block i is samples [floor(i/k * n), floor((i+1)/k * n)).
+  Paper samples are named (photo id, copy index), the copy index counting a photo's augmented
+  copies in their sorted order.
+
+Everything is a pure function of the ids and the seed; the input order of `photo_ids` does not
+matter (ids are sorted first).
+
+    train, test = split(photo_ids, fold=0, scheme="object", object_ids=ids, seed=0)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Hashable, NamedTuple, Sequence
+
+import numpy as np
+
+PAPER_SEED = 123
+PAPER_COPIES_PER_PHOTO = 9
+
+
+class Split(NamedTuple):
+    train: list
+    test: list
+
+
+def _sorted_unique(photo_ids: Sequence[str]) -> list[str]:
+    ids = sorted(photo_ids)
+    for previous, current in zip(ids, ids[1:]):
+        if previous == current:
+            raise ValueError(f"photo id {current!r} appears more than once")
+    return ids
+
+
+def _check_k(k: int, groups: int, what: str) -> None:
+    if k < 2:
+        raise ValueError(f"k={k}: need at least 2 folds")
+    if k > groups:
+        raise ValueError(f"k={k} folds is more than the {groups} {what} to split")
+
+
+def image_wise_folds(photo_ids: Sequence[str], k: int = 5, seed: int = 0) -> dict[str, int]:
+    """Honest image-wise folds: {photo id: fold}, fold sizes differing by at most one."""
+    ids = _sorted_unique(photo_ids)
+    _check_k(k, len(ids), "photos")
+    order = np.random.default_rng(seed).permutation(len(ids))
+    return {ids[index]: position % k for position, index in enumerate(order)}
+
+
+def object_wise_folds(photo_ids: Sequence[str], object_ids: Sequence[Hashable | None],
+                      k: int = 5, seed: int = 0) -> dict[str, int]:
+    """Honest object-wise folds: {photo id: fold}; all photos of an object share a fold.
+
+    Objects are shuffled with `seed`, then placed largest first (ties in shuffled order) into the
+    fold with the fewest photos so far, which balances the folds by photo count.
+    """
+    if len(object_ids) != len(photo_ids):
+        raise ValueError(f"{len(photo_ids)} photo ids but {len(object_ids)} object ids")
+    missing = [photo for photo, obj in zip(photo_ids, object_ids) if obj is None]
+    if missing:
+        raise ValueError(f"object-wise folds need an object id for every photo; missing for "
+                         f"{len(missing)} photos, e.g. {sorted(missing)[:5]}")
+    _sorted_unique(photo_ids)
+    members: dict[Hashable, list[str]] = {}
+    for photo, obj in zip(photo_ids, object_ids):
+        members.setdefault(obj, []).append(photo)
+    _check_k(k, len(members), "objects")
+    objects_sorted = sorted(members, key=repr)  # a canonical order before the seeded shuffle
+    shuffled = [objects_sorted[i] for i in np.random.default_rng(seed).permutation(len(objects_sorted))]
+    shuffled.sort(key=lambda obj: -len(members[obj]))  # stable: ties keep the shuffled order
+    fold_sizes = [0] * k
+    folds = {}
+    for obj in shuffled:
+        fold = int(np.argmin(fold_sizes))
+        fold_sizes[fold] += len(members[obj])
+        for photo in members[obj]:
+            folds[photo] = fold
+    return folds
+
+
+def _paper_block_bounds(num_samples: int, k: int) -> list[int]:
+    # The public code cuts at floor(f * n) for f in [0.2, 0.4, 0.6, 0.8]; i / k is the same double.
+    return [0] + [math.floor(i / k * num_samples) for i in range(1, k)] + [num_samples]
+
+
+def paper_object_wise_folds(num_samples: int, k: int = 5) -> np.ndarray:
+    """KOSMOS-E's "object-wise" folds: fold of each sample of the sorted list, contiguous blocks."""
+    _check_k(k, num_samples, "samples")
+    bounds = _paper_block_bounds(num_samples, k)
+    folds = np.empty(num_samples, np.int64)
+    for fold in range(k):
+        folds[bounds[fold]:bounds[fold + 1]] = fold
+    return folds
+
+
+def paper_image_wise_folds(num_samples: int, k: int = 5, seed: int = PAPER_SEED) -> np.ndarray:
+    """KOSMOS-E's image-wise folds over augmented samples: fold of each sample index.
+
+    Reproduces `idxs = list(range(n)); np.random.seed(seed); np.random.shuffle(idxs)` followed by
+    the block cut, without touching numpy's global state.
+    """
+    _check_k(k, num_samples, "samples")
+    order = list(range(num_samples))
+    np.random.RandomState(seed).shuffle(order)
+    blocks = paper_object_wise_folds(num_samples, k)
+    folds = np.empty(num_samples, np.int64)
+    folds[np.asarray(order, np.int64)] = blocks
+    return folds
+
+
+def paper_samples(photo_ids: Sequence[str], copies_per_photo: int = PAPER_COPIES_PER_PHOTO) -> list[tuple[str, int]]:
+    """The augmented samples in the public code's sorted file order: (photo id, copy index)."""
+    if copies_per_photo < 1:
+        raise ValueError(f"copies_per_photo={copies_per_photo} must be at least 1")
+    return [(photo, copy) for photo in _sorted_unique(photo_ids) for copy in range(copies_per_photo)]
+
+
+def folds_to_split(items: Sequence, folds: Sequence[int], fold: int, k: int) -> Split:
+    """Items whose fold is `fold` are the test set, the rest training; input order kept."""
+    if not 0 <= fold < k:
+        raise ValueError(f"fold {fold} is out of range for k={k} folds (0..{k - 1})")
+    train = [item for item, f in zip(items, folds) if f != fold]
+    test = [item for item, f in zip(items, folds) if f == fold]
+    return Split(train, test)
+
+
+def split(photo_ids: Sequence[str], fold: int, scheme: str = "image", protocol: str = "honest",
+          object_ids: Sequence[Hashable | None] | None = None, k: int = 5, seed: int | None = None,
+          copies_per_photo: int = PAPER_COPIES_PER_PHOTO) -> Split:
+    """Train and test items of fold `fold` (0-based).
+
+    honest: lists of photo ids, sorted; seed defaults to 0. `object_ids` (aligned with
+      `photo_ids`) is required for scheme="object".
+    paper: lists of (photo id, copy index) augmented samples in sorted file order; seed (image-wise
+      only) defaults to the public code's 123; object ids are not used (its "object-wise" split is
+      contiguous blocks of the file list).
+    """
+    if scheme not in ("image", "object"):
+        raise ValueError(f"scheme {scheme!r} must be 'image' or 'object'")
+    if protocol == "honest":
+        if scheme == "image":
+            folds = image_wise_folds(photo_ids, k, 0 if seed is None else seed)
+        else:
+            if object_ids is None:
+                raise ValueError("object-wise split needs object_ids (one per photo id)")
+            folds = object_wise_folds(photo_ids, object_ids, k, 0 if seed is None else seed)
+        ids = sorted(folds)
+        return folds_to_split(ids, [folds[i] for i in ids], fold, k)
+    if protocol == "paper":
+        samples = paper_samples(photo_ids, copies_per_photo)
+        if scheme == "image":
+            folds = paper_image_wise_folds(len(samples), k, PAPER_SEED if seed is None else seed)
+        else:
+            folds = paper_object_wise_folds(len(samples), k)
+        return folds_to_split(samples, folds, fold, k)
+    raise ValueError(f"protocol {protocol!r} must be 'honest' or 'paper'")
