@@ -1,0 +1,302 @@
+"""Synthetic grasping scenes written as a Cornell-layout dataset: the project's own data.
+
+    python -m kosmos_jax.data.synthetic --out DIR --photos N --seed S [--overwrite]
+
+writes, like the real Cornell set (see ../shared/data/README.md):
+  DIR/01/pcd0100r.png ...        640x480 RGB photo; 100 photos a folder (01, 02, ..., 10 for pcd1000)
+  DIR/01/pcd0100d.tiff           480x640 float32 depth in metres, the GG-CNN-processed convention:
+                                 distance from the camera, so objects are SMALLER than the table
+                                 (see synthetic_render's docstring)
+  DIR/01/pcd0100cpos.txt, cneg.txt  4 lines `x y` a rectangle, p0 -> p1 the opening (DESIGN.md 2)
+  DIR/processedData/z.txt        `0100 3 Mug pcdb_0002`, one line a rectangle, as Cornell's
+  DIR/processedData/backgroundMapping.txt
+  DIR/synthetic_meta.json        per photo: object id, category, name, colour, shape, purpose,
+                                 strategy, position, named part polygons, the part of every
+                                 positive grasp (cpos.txt order), table depth plane, pose
+Every object is seen in several photos (about 3.7, as in Cornell) in different poses. The same
+seed gives the same bytes in every file, and photo k does not depend on how many photos follow it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import pathlib
+import re
+import shutil
+import sys
+import time
+
+import cv2
+import numpy as np
+import tifffile
+
+from kosmos_jax import geometry
+from kosmos_jax.data import synthetic_grasps as grasps_lib
+from kosmos_jax.data.synthetic_objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
+from kosmos_jax.data.synthetic_render import HEIGHT, MIN_OBJECT_HEIGHT_M, WIDTH, Background, make_background, render
+
+FIRST_NUMBER = 100  # Cornell's photos start at pcd0100
+MAX_PHOTOS = 9999 - FIRST_NUMBER + 1
+PHOTOS_PER_OBJECT = ((1, 2, 3, 4, 5), (0.05, 0.05, 0.1, 0.75, 0.05))  # mean 3.7, like Cornell
+POSITIVES = ((2, 3, 4, 5, 6, 7), (0.05, 0.2, 0.3, 0.2, 0.15, 0.1))
+NEGATIVES = ((0, 1, 2, 3, 4), (0.03, 0.07, 0.2, 0.6, 0.1))
+META_NAME = "synthetic_meta.json"
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    rgb: np.ndarray  # [480, 640, 3] uint8 RGB
+    depth: np.ndarray  # [480, 640] float32 metres
+    positives: np.ndarray  # [N, 4, 2] corners, p0 -> p1 the opening
+    negatives: np.ndarray  # [K, 4, 2]
+    meta: dict
+    object_mask: np.ndarray  # [480, 640] bool
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannedPhoto:
+    index: int  # 0-based photo index
+    object_index: int
+    category: str
+    background_index: int
+
+
+def photo_stem(index: int) -> tuple[str, str]:
+    """(folder, stem) of the index-th photo: 0 -> ("01", "pcd0100"), 900 -> ("10", "pcd1000")."""
+    number = FIRST_NUMBER + index
+    return f"{number // 100:02d}", f"pcd{number:04d}"
+
+
+def plan(seed: int, photos: int) -> list[PlannedPhoto]:
+    """Which object (and category, background) each photo shows; a prefix of any longer plan."""
+    rng = np.random.default_rng([seed, 0])
+    names = sorted(CATEGORIES)
+    out, object_index, background_index, round_order = [], 0, 0, []
+    objects_on_background = int(rng.integers(2, 5))
+    while len(out) < photos:
+        if not round_order:  # every category once per round, so a few dozen photos show them all
+            round_order = [names[i] for i in rng.permutation(len(names))]
+        category = round_order.pop(0)
+        count = int(rng.choice(PHOTOS_PER_OBJECT[0], p=PHOTOS_PER_OBJECT[1]))
+        if objects_on_background == 0:
+            background_index += 1
+            objects_on_background = int(rng.integers(2, 5))
+        objects_on_background -= 1
+        for _ in range(count):
+            if len(out) < photos:
+                out.append(PlannedPhoto(len(out), object_index, category, background_index))
+        object_index += 1
+    return out
+
+
+def position_word(mask: np.ndarray) -> str:
+    """KOSMOS-E's nine sections: "top left" ... "middle" ... "bottom right" of the object's centroid."""
+    ys, xs = np.nonzero(mask)
+    col = min(2, int(3 * (xs.mean() + 0.5) / mask.shape[1]))
+    row = min(2, int(3 * (ys.mean() + 0.5) / mask.shape[0]))
+    vertical, horizontal = ("top", "", "bottom")[row], ("left", "", "right")[col]
+    return " ".join(w for w in (vertical, horizontal) if w) or "middle"
+
+
+def colour_phrase(colours) -> str:
+    if len(colours) == 1:
+        return colours[0]
+    return f"{colours[0]} with {' and '.join(colours[1:])} details"
+
+
+def _round(points, digits=2):
+    return np.round(np.asarray(points, np.float64), digits).tolist()
+
+
+def _pose_fits(placed: ObjectSpec, background: Background) -> bool:
+    every = np.concatenate([p.shell for p in placed.parts])
+    if every[:, 0].min() < 30 or every[:, 0].max() > WIDTH - 30 or every[:, 1].max() > HEIGHT - 30:
+        return False
+    return bool(grasps_lib.inside(background.table_mask, every).all() and every[:, 1].min() > 40)
+
+
+def make_scene(rng: np.random.Generator, spec: ObjectSpec, background: Background, tries: int = 40) -> Scene:
+    """Pose `spec` on `background`, render it, and sample its positive and negative grasps."""
+    graspable = [i for i, p in enumerate(spec.parts) if p.spine is not None]
+    weights = np.array([spec.parts[i].weight for i in graspable])
+    for _ in range(tries):
+        angle, scale = rng.uniform(0, 2 * math.pi), rng.uniform(0.9, 1.12)
+        centre = rng.uniform([200, 200], [440, 370])
+        placed = place(spec, pose_matrix(centre[0], centre[1], angle, scale))
+        if not _pose_fits(placed, background):
+            continue
+        drawn = render(rng, background, placed)
+        masks = grasps_lib.Masks(drawn.object_mask, drawn.part_masks)
+        positives, parts_of = [], []
+        for _ in range(int(rng.choice(POSITIVES[0], p=POSITIVES[1]))):
+            k = graspable[int(rng.choice(len(graspable), p=weights / weights.sum()))]
+            grasp = grasps_lib.sample_positive(rng, placed.parts[k], k, masks)
+            if grasp is not None:
+                positives.append(grasp)
+                parts_of.append(placed.parts[k].name)
+        if not positives:
+            continue
+        negatives, kinds = [], []
+        for _ in range(int(rng.choice(NEGATIVES[0], p=NEGATIVES[1]))):
+            part = placed.parts[graspable[int(rng.integers(len(graspable)))]]
+            kind = str(rng.choice(grasps_lib.NEGATIVE_KINDS))
+            kind = "narrow" if kind == "along" and part.isotropic else kind
+            grasp = grasps_lib.sample_negative(rng, kind, part, masks)
+            if grasp is not None:
+                negatives.append(grasp)
+                kinds.append(kind)
+        meta = {
+            "object_id": spec.object_id,
+            "category": spec.category,
+            "name": spec.name,
+            "colour": list(spec.colours),
+            "colour_phrase": colour_phrase(spec.colours),
+            "shape": list(spec.shape_words),
+            "shape_phrase": spec.shape_phrase,
+            "purpose": spec.purpose,
+            "strategy": spec.strategy,
+            "position": position_word(drawn.object_mask),
+            "parts": [{"name": p.name, "graspable": p.spine is not None, "polygon": _round(p.shell),
+                       "holes": [_round(h) for h in p.holes]} for p in placed.parts],
+            "grasp_parts": parts_of,
+            "negative_kinds": kinds,
+            "pose": {"x": round(float(centre[0]), 3), "y": round(float(centre[1]), 3),
+                     "angle_deg": round(math.degrees(angle), 3), "scale": round(float(scale), 4)},
+            "background": background.name,
+            "table_kind": background.kind,
+            "table_inverse_depth": list(background.table_inverse_depth),
+        }
+        to_corners = lambda gs: geometry.grasps_to_corners(np.array(gs, np.float64).reshape(-1, 5))  # noqa: E731
+        return Scene(rgb=drawn.rgb, depth=drawn.depth, positives=to_corners(positives),
+                     negatives=to_corners(negatives), meta=meta, object_mask=drawn.object_mask)
+    raise RuntimeError(f"could not place a graspable {spec.category} (object {spec.object_id}) in {tries} tries")
+
+
+# ---- files -----------------------------------------------------------------------------------
+
+
+def _number(value: float) -> str:
+    text = f"{round(float(value), 3):.3f}".rstrip("0").rstrip(".")
+    return "0" if text == "-0" else text
+
+
+def format_rectangles(corners: np.ndarray) -> str:
+    """Cornell's text: `x y` a line, trailing space on the first three lines of each rectangle."""
+    lines = []
+    for rectangle in np.asarray(corners).reshape(-1, 4, 2):
+        for k, (x, y) in enumerate(rectangle):
+            lines.append(f"{_number(x)} {_number(y)}" + (" " if k < 3 else "") + "\n")
+    return "".join(lines)
+
+
+def write_photo(folder: pathlib.Path, stem: str, scene: Scene) -> None:
+    ok, png = cv2.imencode(".png", cv2.cvtColor(scene.rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RuntimeError(f"PNG encoding failed for {folder / stem}")
+    (folder / f"{stem}r.png").write_bytes(png.tobytes())
+    # No timestamp (datetime=None), so the same scene gives the same bytes.
+    tifffile.imwrite(folder / f"{stem}d.tiff", scene.depth, datetime=None, software="kosmos_jax.synthetic")
+    (folder / f"{stem}cpos.txt").write_text(format_rectangles(scene.positives))
+    (folder / f"{stem}cneg.txt").write_text(format_rectangles(scene.negatives))
+
+
+def _prepare_out(out: pathlib.Path, overwrite: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise ValueError(f"--out {out} is not empty; pass --overwrite to replace a synthetic dataset there")
+        if not (out / META_NAME).is_file():
+            raise ValueError(f"refusing to overwrite {out}: it holds no {META_NAME}, so it may not be a synthetic dataset")
+        for child in sorted(out.iterdir()):
+            if child.name == META_NAME:
+                child.unlink()
+            elif child.is_dir() and (re.fullmatch(r"\d\d", child.name) or child.name == "processedData"):
+                shutil.rmtree(child)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress: bool = False) -> dict:
+    """Write `photos` synthetic photos in Cornell layout under `out`; returns a short summary."""
+    if isinstance(photos, bool) or not isinstance(photos, (int, np.integer)) or not 1 <= photos <= MAX_PHOTOS:
+        raise ValueError(f"photos must be an integer in [1, {MAX_PHOTOS}], got {photos!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    out = pathlib.Path(out)
+    _prepare_out(out, overwrite)
+    (out / "processedData").mkdir()
+    z_lines, mapping_lines, metas = [], [], {}
+    spec, background, start = None, None, time.monotonic()
+    every = max(1, photos // 10)
+    for planned in plan(seed, photos):
+        if spec is None or spec.object_id != planned.object_index:
+            spec = sample_object(np.random.default_rng([seed, 1, planned.object_index]), planned.category,
+                                 planned.object_index)
+        if background is None or background.name != f"pcdb_{planned.background_index + 1:04d}":
+            name = f"pcdb_{planned.background_index + 1:04d}"
+            background = make_background(np.random.default_rng([seed, 2, planned.background_index]), name)
+        scene = make_scene(np.random.default_rng([seed, 3, planned.index]), spec, background)
+        folder_name, stem = photo_stem(planned.index)
+        folder = out / folder_name
+        folder.mkdir(exist_ok=True)
+        write_photo(folder, stem, scene)
+        number = stem[3:]
+        rectangles = len(scene.positives) + len(scene.negatives)
+        z_lines += [f"{number} {spec.object_id} {spec.category} {background.name}\n"] * rectangles
+        mapping_lines.append(f"{stem}r.png {background.name}r.png\n")
+        metas[stem] = {"folder": folder_name, **scene.meta}
+        if progress and ((planned.index + 1) % every == 0 or planned.index + 1 == photos):
+            print(f"synthetic: {planned.index + 1}/{photos} photos ({time.monotonic() - start:.1f} s)",
+                  file=sys.stderr, flush=True)
+    (out / "processedData" / "z.txt").write_text("".join(z_lines))
+    (out / "processedData" / "backgroundMapping.txt").write_text("".join(mapping_lines))
+    header = {
+        "generator": "kosmos_jax.data.synthetic",
+        "format_version": 1,
+        "seed": seed,
+        "count": photos,
+        "depth": {
+            "units": "metres",
+            "convention": "distance from the camera (GG-CNN-processed Cornell d.tiff): objects are nearer, "
+            "so smaller, than the table; table plane 1/depth = a + b*y + c*x at pixel centres, "
+            "(a, b, c) = table_inverse_depth",
+            "min_object_height_m": MIN_OBJECT_HEIGHT_M,
+        },
+        "categories": sorted(CATEGORIES),
+    }
+    lines = [f"{json.dumps(stem)}: {json.dumps(meta, separators=(',', ':'))}" for stem, meta in metas.items()]
+    text = json.dumps(header, indent=1)[:-2] + ',\n "photos": {\n' + ",\n".join(lines) + "\n }\n}\n"
+    (out / META_NAME).write_text(text)
+    objects = sorted({m["object_id"] for m in metas.values()})
+    return {"photos": photos, "objects": len(objects),
+            "categories": sorted({m["category"] for m in metas.values()}),
+            "seconds": round(time.monotonic() - start, 2)}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.data.synthetic", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", required=True, type=pathlib.Path, help="dataset folder (created)")
+    parser.add_argument("--photos", required=True, type=int, help=f"number of photos, 1..{MAX_PHOTOS}")
+    parser.add_argument("--seed", type=int, default=0, help="non-negative integer (default 0)")
+    parser.add_argument("--overwrite", action="store_true", help="replace a synthetic dataset already in --out")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    args = parser.parse_args(argv)
+    if not 1 <= args.photos <= MAX_PHOTOS:
+        parser.error(f"--photos must be in [1, {MAX_PHOTOS}], got {args.photos}")
+    if args.seed < 0:
+        parser.error(f"--seed must be non-negative, got {args.seed}")
+    try:
+        summary = write_dataset(args.out, args.photos, args.seed, overwrite=args.overwrite,
+                                progress=not args.quiet and args.photos >= 20)
+    except ValueError as error:
+        parser.error(str(error))
+    print(f"wrote {summary['photos']} photos of {summary['objects']} objects "
+          f"({len(summary['categories'])} categories) to {args.out} in {summary['seconds']} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
