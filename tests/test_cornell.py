@@ -186,7 +186,7 @@ def test_cli_prints_json_summary(cornell_root, kosmos_e_annotations):
     z_lines = (cornell_root / "processedData" / "z.txt").read_text().split("\n")
     local = {p.name[3:7] for p in all_cpos(cornell_root)}
     objects = {l.split()[1] for l in z_lines if l.strip() and l.split()[0] in local}
-    assert summary["photos"] == 101
+    assert summary["photos"] == summary["photos_in_full_set"] == 101
     assert summary["positive_rectangles"] == sum(k for k, _ in counts)
     assert summary["nan_rectangles_dropped"] == sum(n for _, n in counts) == 3
     assert summary["negative_rectangles"] == sum(k for k, _ in negatives)

@@ -260,6 +260,7 @@ def summarize(root: str | pathlib.Path, *, load_images: bool = True, object_map=
     summary = {
         "root": str(root),
         "photos": photos,
+        "photos_in_full_set": sum(files.id in FULL_SET_IDS for files in find_photos(root)),
         "positive_rectangles": kept,
         "nan_rectangles_dropped": dropped,
         "negative_rectangles": negative,
