@@ -1,0 +1,191 @@
+"""Formatter and prompt layout: parts, parse-back, loss mask span, image slots, overflow, settings."""
+
+import math
+
+import numpy as np
+import pytest
+
+from kosmos_jax import geometry, grasp_text
+from kosmos_jax.instruct.sample import Sample
+from kosmos_jax.text import layout
+from kosmos_jax.text import tokens as special
+from kosmos_jax.text.formatter import FormatConfig, format_sample, parse_target, prompt_cues
+from kosmos_jax.text.tokenizer import train_tokenizer
+
+SIZE = 224
+
+
+def _grasps(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.stack(
+        [rng.uniform(0, SIZE, n), rng.uniform(0, SIZE, n), rng.uniform(5, 80, n), rng.uniform(5, 40, n), rng.uniform(-np.pi / 2, np.pi / 2, n)],
+        axis=1,
+    )
+
+
+def _sample(grasps, kind="name", instruction="Grasp the black remote control.", answer="grasp"):
+    return Sample(
+        kind=kind,
+        scene="single",
+        instruction=instruction,
+        answer=answer,
+        image=np.zeros((SIZE, SIZE, 3), np.uint8),
+        grasps=grasps,
+        photo_ids=("pcd0100",),
+        object_ids=(3,),
+    )
+
+
+@pytest.fixture(scope="module")
+def tokenizer():
+    texts = ["Grasp the black remote control.", "Grasp the object with a rotation angle of a_12 radians."]
+    for representation in grasp_text.REPRESENTATIONS:
+        texts += [grasp_text.format_grasp(g, representation, code) for g in _grasps(20) for code in (True, False)]
+    return train_tokenizer(texts, text_pieces=300)
+
+
+def _tolerance(representation, angle_code):
+    centre = SIZE / grasp_text.PATCH_GRID if representation == "tlbra_patch" else 0.5 + 1e-9
+    angle = math.pi / geometry.ANGLE_BINS / 2 + 1e-9 if angle_code else 0.005 + 1e-9
+    return centre, angle
+
+
+@pytest.mark.parametrize("representation", grasp_text.REPRESENTATIONS)
+@pytest.mark.parametrize("angle_code", [True, False])
+@pytest.mark.parametrize("individual", [True, False])
+def test_targets_parse_back(representation, angle_code, individual):
+    config = FormatConfig(representation=representation, angle_code=angle_code, individual=individual, target_grasp="each")
+    grasps = _grasps(50, seed=1)
+    grasps[:, :2] = np.clip(grasps[:, :2], 0, SIZE - 1)  # the centre clip of the formatter, tested below
+    if representation == "tlbra_patch":
+        # patch indices clip the box to the image; keep the boxes inside to compare centres
+        boxes = np.stack([grasp_text.bounding_box(g) for g in grasps])
+        grasps = grasps[(boxes[:, :2] >= 0).all(1) & (boxes[:, 2:] <= SIZE).all(1)]
+    examples = format_sample(_sample(grasps), config)
+    assert len(grasps) > 10 and len(examples) == len(grasps) * (2 if individual else 1)
+    centre_tol, angle_tol = _tolerance(representation, angle_code)
+    for example in examples:
+        parsed = parse_target(example.target_text, example.part, config)
+        assert parsed.ok, (example.target_text, parsed.error)
+        stated = example.grasp_mask
+        if example.part == "angle":
+            assert np.all(np.isnan(parsed.grasp[:4]))
+        assert not np.any(np.isnan(parsed.grasp[stated]))
+        if stated[0]:
+            assert np.all(np.abs(parsed.grasp[:2] - example.grasp[:2]) <= centre_tol)
+        if stated[2]:
+            assert np.all(np.abs(parsed.grasp[2:4] - example.grasp[2:4]) <= 0.5 + 1e-9)
+        if stated[4]:
+            assert geometry.angle_difference(parsed.grasp[4], example.grasp[4]) <= angle_tol
+    parts = sorted({e.part for e in examples})
+    assert parts == (["angle", "location"] if individual else ["grasp"])
+
+
+def test_xya_individual_text_is_the_papers():
+    grasp = np.array([100.4, 57.6, 40.0, 20.0, 0.3])
+    centre, angle = format_sample(_sample(grasp[None]), FormatConfig())
+    assert (centre.cue, centre.value) == ("Grasp center point coordinates:", "x_100,y_58")
+    assert (angle.cue, angle.value) == ("Grasp rotation angle in radians:", f"a_{int(geometry.encode_angle(0.3))}")
+    assert centre.target_text + " " + angle.target_text == grasp_text.format_grasp(grasp)
+    assert prompt_cues(FormatConfig()) == [("location", centre.cue), ("angle", angle.cue)]
+    assert prompt_cues(FormatConfig(individual=False)) == [("grasp", "")]
+
+
+def test_angle_instruction_answers_location_only():
+    sample = _sample(_grasps(3), kind="angle", instruction="Grasp the object with a rotation angle of a_12 radians.", answer="centre")
+    for individual in (True, False):
+        examples = format_sample(sample, FormatConfig(individual=individual))
+        assert [e.part for e in examples] == ["location"]
+        assert examples[0].grasp_mask.tolist() == [True, True, False, False, False]
+
+
+def test_target_grasp_choice():
+    grasps = _grasps(5)
+    first = format_sample(_sample(grasps), FormatConfig(target_grasp="first", individual=False))
+    assert len(first) == 1 and np.array_equal(first[0].grasp, grasps[0])
+    drawn = format_sample(_sample(grasps), FormatConfig(target_grasp="random", individual=False), np.random.default_rng(4))
+    assert any(np.array_equal(drawn[0].grasp, g) for g in grasps)
+    assert np.array_equal(drawn[0].answers, grasps)
+    with pytest.raises(ValueError, match="Generator"):
+        format_sample(_sample(grasps), FormatConfig(target_grasp="random"))
+
+
+def test_centre_on_the_edge_prints_inside():
+    grasp = np.array([[223.7, 0.2, 30.0, 10.0, 0.0]])
+    (example,) = format_sample(_sample(grasp), FormatConfig(individual=False))
+    assert example.value.startswith("Grasp center point coordinates: x_223,y_0 ")
+    assert parse_target(example.target_text, "grasp", FormatConfig()).ok
+
+
+@pytest.mark.parametrize("loss_on", ["target", "instruction"])
+@pytest.mark.parametrize("individual", [True, False])
+def test_layout_and_loss_span(tokenizer, loss_on, individual):
+    config = FormatConfig(individual=individual, loss_on=loss_on, max_length=160)
+    for example in format_sample(_sample(_grasps(4, seed=2)), config):
+        encoded = layout.encode_example(example, tokenizer, config)
+        tokens, loss, image = encoded["tokens"], encoded["loss_mask"], encoded["image_mask"]
+        length = int(encoded["length"])
+        assert tokens.shape == loss.shape == image.shape == (160,)
+        assert tokens[0] == tokenizer.bos_id and tokens[1] == tokenizer.image_start_id
+        assert tokens[2 + special.IMAGE_SLOTS] == tokenizer.image_end_id
+        assert np.flatnonzero(image).tolist() == list(range(2, 66))
+        assert tokens[image].tolist() == list(range(4, 68))
+        assert tokens[length - 1] == tokenizer.eos_id and np.all(tokens[length:] == tokenizer.pad_id)
+        if loss_on == "target":
+            expected = tokenizer.encode(example.value) + [tokenizer.eos_id]
+        else:
+            expected = tokens[layout.PREFIX_LENGTH : length].tolist()
+        assert tokens[loss].tolist() == expected
+        # the masked span is contiguous and ends at </s>
+        positions = np.flatnonzero(loss)
+        assert positions[-1] == length - 1 and np.all(np.diff(positions) == 1)
+        assert tokenizer.decode(tokens[layout.text_span(encoded)]) == example.text
+        assert not bool(encoded["truncated"])
+
+
+def test_non_has_no_instruction_tokens(tokenizer):
+    config = FormatConfig(individual=False)
+    (example,) = format_sample(_sample(_grasps(1), kind="non", instruction=""), config)
+    encoded = layout.encode_example(example, tokenizer, config)
+    first_text = layout.PREFIX_LENGTH
+    assert encoded["loss_mask"][first_text] and not encoded["loss_mask"][first_text - 1]
+
+
+def test_overflow_error_and_truncation(tokenizer):
+    long_instruction = "Grasp the " + "very " * 80 + "long object."
+    sample = _sample(_grasps(1), instruction=long_instruction)
+    config = FormatConfig(max_length=100)
+    (example, _) = format_sample(sample, config)
+    with pytest.raises(layout.SequenceTooLongError, match=r"pcd0100.*max_length=100"):
+        layout.encode_example(example, tokenizer, config)
+    cut = FormatConfig(max_length=100, overflow="truncate")
+    encoded = layout.encode_example(example, tokenizer, cut)
+    assert bool(encoded["truncated"]) and int(encoded["length"]) == 100
+    assert encoded["tokens"].shape == (100,)
+
+
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ({"representation": "xyz"}, "unknown grasp representation 'xyz'"),
+        ({"loss_on": "all"}, "unknown loss_on 'all'"),
+        ({"overflow": "drop"}, "unknown overflow 'drop'"),
+        ({"target_grasp": "best"}, "unknown target_grasp 'best'"),
+        ({"image_size": 0}, "image_size"),
+    ],
+)
+def test_bad_settings(settings, message):
+    with pytest.raises(ValueError, match=message):
+        FormatConfig(**settings)
+
+
+def test_bad_inputs(tokenizer):
+    with pytest.raises(ValueError, match="pcd0100.*no grasps"):
+        format_sample(_sample(np.zeros((0, 5))), FormatConfig())
+    with pytest.raises(ValueError, match="unknown answer 'box'"):
+        format_sample(_sample(_grasps(1), answer="box"), FormatConfig())
+    with pytest.raises(ValueError, match="unknown part"):
+        parse_target("x", "size", FormatConfig())
+    (example, _) = format_sample(_sample(_grasps(1)), FormatConfig())
+    with pytest.raises(ValueError, match="max_length=40"):
+        layout.encode_example(example, tokenizer, FormatConfig(max_length=40))
