@@ -1,0 +1,1 @@
+"""Storage and loading: TFDS array_record builders (no TensorFlow) and a grain input pipeline."""

@@ -1,0 +1,75 @@
+"""A grain input pipeline over a written split: shuffle, shard by process, batch, resume exactly.
+
+Order of operations: a seeded global shuffle of the whole split (every process draws the same
+permutation), then process `process_index` takes every `process_count`-th example of it, so the
+processes see disjoint parts of each epoch; then records become fixed-shape arrays and are
+batched. Epochs repeat with a fresh permutation each (`reseed_each_epoch`). The iterator's
+`get_state()` is a small dict that `set_state()` restores exactly, for saving beside a checkpoint.
+
+A batch holds the numeric features only (strings stay in the files): image uint8 [B, S, S, 3],
+tokens int32 [B, L], loss_mask / image_mask bool [B, L], length int32 [B], grasp float32 [B, 5],
+grasp_mask bool [B, 5], answers float32 [B, A, 5] padded to `max_answers` with answers_mask
+bool [B, A].
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import grain
+import numpy as np
+
+NUMERIC_FEATURES = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp", "grasp_mask")
+
+
+def to_arrays(record: Mapping[str, Any], max_answers: int) -> dict[str, np.ndarray]:
+    """One stored record -> fixed-shape numpy arrays (answers padded to `max_answers`)."""
+    arrays = {name: np.asarray(record[name]) for name in NUMERIC_FEATURES}
+    answers = np.asarray(record["answers"], np.float32).reshape(-1, 5)
+    if answers.shape[0] > max_answers:
+        raise ValueError(f"record with {answers.shape[0]} answer grasps exceeds max_answers={max_answers}")
+    padded = np.zeros((max_answers, 5), np.float32)
+    padded[: answers.shape[0]] = answers
+    mask = np.zeros(max_answers, bool)
+    mask[: answers.shape[0]] = True
+    arrays["answers"], arrays["answers_mask"] = padded, mask
+    return arrays
+
+
+def make_dataset(
+    source,
+    batch_size: int,
+    *,
+    seed: int = 0,
+    shuffle: bool = True,
+    process_index: int = 0,
+    process_count: int = 1,
+    num_epochs: int | None = 1,
+    drop_remainder: bool = True,
+    max_answers: int = 64,
+    read_options: grain.ReadOptions | None = None,
+) -> grain.IterDataset:
+    """The batched dataset of one split; `iter()` it, and use get_state / set_state to resume."""
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be positive, got {batch_size}")
+    if not 0 <= process_index < process_count:
+        raise ValueError(f"process_index {process_index} outside 0..{process_count - 1}")
+    if len(source) < process_count:
+        raise ValueError(f"a split of {len(source)} examples cannot be shared by {process_count} processes")
+    dataset = grain.MapDataset.source(source)
+    if shuffle:
+        dataset = dataset.shuffle(seed=seed)
+    dataset = dataset[process_index::process_count]
+    if num_epochs != 1:
+        dataset = dataset.repeat(num_epochs, reseed_each_epoch=True)
+    dataset = dataset.map(lambda record: to_arrays(record, max_answers))
+    dataset = dataset.batch(batch_size, drop_remainder=drop_remainder)
+    # read_options: grain's read threads and prefetch buffer (its defaults read far ahead)
+    return dataset.to_iter_dataset(read_options)
+
+
+def process_shard() -> tuple[int, int]:
+    """(process_index, process_count) of this JAX process."""
+    import jax
+
+    return jax.process_index(), jax.process_count()

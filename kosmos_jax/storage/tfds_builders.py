@@ -1,0 +1,247 @@
+"""TFDS builders that write `array_record` files without TensorFlow.
+
+Checked on tensorflow-datasets 4.9.10 with TensorFlow absent: `GeneratorBasedBuilder` with
+`file_format="array_record"` writes and `tfds.builder_from_directory(...).as_data_source()` reads
+(`as_dataset()` and tfrecord need TensorFlow). `tfds.features.Image(encoding_format="png")`
+works as long as examples hand it encoded PNG bytes (we encode with OpenCV); reading decodes them
+back to uint8 arrays without TensorFlow. Strings come back as bytes. `DatasetInfo` is built
+directly: `dataset_info_from_configs` looks for metadata files beside the builder's module.
+
+Two builders:
+- `CornellFolder`: every photo of a Cornell-format folder, given as `manual_dir`, in one split
+  "full" (folds are decided later, by `kosmos_jax.data.splits`).
+- `InstructGrasp`: formatted and tokenized INSTRUCT-GRASP examples, one config per protocol,
+  split scheme, fold, kinds, build size and text format (`InstructGraspConfig`). The examples are
+  made by `kosmos_jax.data.build` and handed to the builder (`records=`), since they depend on the
+  other pipeline stages; the builder owns the layout on disk and the feature spec.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import pathlib
+from typing import Iterable, Mapping
+
+import cv2
+import numpy as np
+import tensorflow_datasets as tfds
+from etils import epath
+
+from kosmos_jax.data import cornell
+
+ARRAY_RECORD = "array_record"
+CORNELL_SPLIT = "full"
+
+
+def png_bytes(rgb: np.ndarray) -> bytes:
+    """RGB uint8 [H, W, 3] -> PNG bytes (OpenCV writes BGR, hence the flip)."""
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected an RGB uint8 [H, W, 3] image, got {rgb.dtype} {rgb.shape}")
+    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise ValueError(f"OpenCV could not encode an image of shape {rgb.shape} as PNG")
+    return encoded.tobytes()
+
+
+def _id_or_unknown(value) -> int:
+    return -1 if value is None else int(value)
+
+
+class _LocalBuilder(tfds.core.GeneratorBasedBuilder):
+    """A builder whose code path is its source file.
+
+    tfds' own `code_path` probes package resources through `importlib_resources`, a backport that
+    is not installed here (and not needed on Python >= 3.9); the file path is what it computes.
+    """
+
+    @tfds.core.utils.classproperty
+    @classmethod
+    def code_path(cls) -> epath.Path:
+        return epath.Path(inspect.getfile(cls))
+
+
+class CornellFolder(_LocalBuilder):
+    """Photos of a Cornell-format folder (pcdNNNNr.png, d.tiff, cpos.txt, cneg.txt; z.txt optional)."""
+
+    VERSION = tfds.core.Version("1.0.0")
+    MANUAL_DOWNLOAD_INSTRUCTIONS = "Pass the Cornell-format folder as manual_dir (DownloadConfig(manual_dir=...))."
+
+    def _info(self) -> tfds.core.DatasetInfo:
+        return tfds.core.DatasetInfo(
+            builder=self,
+            description="Cornell grasping photos with their positive and negative rectangles.",
+            features=tfds.features.FeaturesDict(
+                {
+                    "id": tfds.features.Text(),
+                    "rgb": tfds.features.Image(shape=(None, None, 3), encoding_format="png"),
+                    # [0, 0] when the photo has no depth file
+                    "depth": tfds.features.Tensor(shape=(None, None), dtype=np.float32, encoding=tfds.features.Encoding.ZLIB),
+                    "grasps": tfds.features.Tensor(shape=(None, 5), dtype=np.float64),
+                    "negatives": tfds.features.Tensor(shape=(None, 5), dtype=np.float64),
+                    "object_id": np.int64,  # -1: unknown
+                    "category": tfds.features.Text(),
+                    "nan_dropped": np.int32,
+                }
+            ),
+        )
+
+    def _split_generators(self, dl_manager):
+        root = pathlib.Path(dl_manager.manual_dir)
+        if not root.is_dir():
+            raise FileNotFoundError(f"Cornell folder {root} does not exist")
+        return {CORNELL_SPLIT: self._generate_examples(root)}
+
+    def _generate_examples(self, root):
+        count = 0
+        for photo in cornell.iter_photos(root):
+            count += 1
+            depth = np.zeros((0, 0), np.float32) if photo.depth is None else photo.depth.astype(np.float32)
+            yield photo.id, {
+                "id": photo.id,
+                "rgb": png_bytes(photo.rgb),
+                "depth": depth,
+                "grasps": np.asarray(photo.grasps, np.float64).reshape(-1, 5),
+                "negatives": np.asarray(photo.negatives, np.float64).reshape(-1, 5),
+                "object_id": _id_or_unknown(photo.object_id),
+                "category": photo.category or "",
+                "nan_dropped": int(photo.nan_dropped),
+            }
+        if count == 0:
+            raise FileNotFoundError(f"no Cornell photos (pcdNNNNr.png / cpos.txt) under {root}")
+
+
+def build_cornell(source, data_dir) -> pathlib.Path:
+    """Write the Cornell-format folder `source` under `data_dir`; returns the dataset's folder."""
+    if not pathlib.Path(source).is_dir():
+        raise FileNotFoundError(f"Cornell folder {source} does not exist")
+    builder = CornellFolder(data_dir=str(data_dir), file_format=ARRAY_RECORD)
+    builder.download_and_prepare(download_config=tfds.download.DownloadConfig(manual_dir=str(source)))
+    return pathlib.Path(builder.data_dir)
+
+
+@dataclasses.dataclass(eq=False)  # tfds.core.BuilderConfig is a mutable dataclass
+class InstructGraspConfig(tfds.core.BuilderConfig):
+    """One INSTRUCT-GRASP build. `name` is derived from the fields when left empty."""
+
+    protocol: str = "honest"
+    split_by: str = "image"
+    fold: int = 0
+    folds: int = 5
+    kinds: tuple[str, ...] = ()
+    augmentations: int = 1
+    seed: int = 0
+    representation: str = "xya"
+    angle_code: bool = True
+    individual: bool = True
+    loss_on: str = "target"
+    numbers: str = "digits"
+    max_length: int = 128
+    image_size: int = 224
+    max_answers: int = 64
+
+
+def config_name(protocol: str, split_by: str, fold: int, kinds: Iterable[str], augmentations: int, representation: str) -> str:
+    return f"{protocol}-{split_by}-fold{fold}-{'_'.join(kinds)}-aug{augmentations}-{representation}"
+
+
+def make_config(**fields) -> InstructGraspConfig:
+    fields.setdefault("kinds", ())
+    fields["kinds"] = tuple(fields["kinds"])
+    probe = InstructGraspConfig(name="probe", **fields)
+    name = config_name(probe.protocol, probe.split_by, probe.fold, probe.kinds, probe.augmentations, probe.representation)
+    return InstructGraspConfig(name=name, description=f"INSTRUCT-GRASP {name}", **fields)
+
+
+def instruct_features(max_length: int, image_size: int) -> tfds.features.FeaturesDict:
+    sequence = (max_length,)
+    return tfds.features.FeaturesDict(
+        {
+            "image": tfds.features.Image(shape=(image_size, image_size, 3), encoding_format="png"),
+            "tokens": tfds.features.Tensor(shape=sequence, dtype=np.int32),
+            "loss_mask": tfds.features.Tensor(shape=sequence, dtype=np.bool_),
+            "image_mask": tfds.features.Tensor(shape=sequence, dtype=np.bool_),
+            "length": np.int32,
+            "truncated": np.bool_,
+            "grasp": tfds.features.Tensor(shape=(5,), dtype=np.float32),
+            "grasp_mask": tfds.features.Tensor(shape=(5,), dtype=np.bool_),
+            "answers": tfds.features.Tensor(shape=(None, 5), dtype=np.float32),
+            "kind": tfds.features.Text(),
+            "scene": tfds.features.Text(),
+            "part": tfds.features.Text(),
+            "instruction": tfds.features.Text(),
+            "target_text": tfds.features.Text(),
+            "photo_ids": tfds.features.Sequence(tfds.features.Text()),
+            "object_ids": tfds.features.Tensor(shape=(None,), dtype=np.int64),  # -1: unknown
+            "target": np.int32,
+        }
+    )
+
+
+class InstructGrasp(_LocalBuilder):
+    """INSTRUCT-GRASP examples; `records` maps a split name to its examples (dicts of the features)."""
+
+    VERSION = tfds.core.Version("1.0.0")
+    BUILDER_CONFIGS = [make_config()]
+
+    def __init__(self, *, records: Mapping[str, Iterable[dict]] | None = None, **kwargs):
+        self._records = records
+        super().__init__(**kwargs)
+
+    def _info(self) -> tfds.core.DatasetInfo:
+        config = self.builder_config
+        return tfds.core.DatasetInfo(
+            builder=self,
+            description="INSTRUCT-GRASP samples (KOSMOS-E) in the KOSMOS-2 prompt layout.",
+            features=instruct_features(config.max_length, config.image_size),
+            metadata=tfds.core.MetadataDict({"config": dataclasses.asdict(config)}),
+        )
+
+    def _split_generators(self, dl_manager):
+        if self._records is None:
+            raise ValueError("InstructGrasp writes the examples it is given: pass records={split: examples}")
+        return {split: self._generate_examples(split, examples) for split, examples in self._records.items()}
+
+    def _generate_examples(self, split, examples):
+        for index, example in enumerate(examples):
+            yield f"{split}-{index:08d}", example
+
+
+def example_record(encoded: Mapping[str, np.ndarray], example) -> dict:
+    """A `TextExample` and its `layout.encode_example` arrays as one InstructGrasp record."""
+    return {
+        "image": png_bytes(example.image),
+        "tokens": np.asarray(encoded["tokens"], np.int32),
+        "loss_mask": np.asarray(encoded["loss_mask"], bool),
+        "image_mask": np.asarray(encoded["image_mask"], bool),
+        "length": np.int32(encoded["length"]),
+        "truncated": bool(encoded["truncated"]),
+        "grasp": np.asarray(example.grasp, np.float32),
+        "grasp_mask": np.asarray(example.grasp_mask, bool),
+        "answers": np.asarray(example.answers, np.float32).reshape(-1, 5),
+        "kind": example.kind,
+        "scene": example.scene,
+        "part": example.part,
+        "instruction": example.instruction,
+        "target_text": example.target_text,
+        "photo_ids": list(example.photo_ids),
+        "object_ids": np.asarray([_id_or_unknown(o) for o in example.object_ids], np.int64),
+        "target": np.int32(example.target),
+    }
+
+
+def write_instruct_grasp(records: Mapping[str, Iterable[dict]], data_dir, **config_fields) -> pathlib.Path:
+    """Write the records of each split under `data_dir`; returns the dataset's version folder."""
+    config = make_config(**config_fields)
+    builder = InstructGrasp(records=records, config=config, data_dir=str(data_dir), file_format=ARRAY_RECORD)
+    builder.download_and_prepare()
+    return pathlib.Path(builder.data_dir)
+
+
+def open_splits(dataset_dir) -> dict:
+    """{split: random-access source} of a written dataset folder; no TensorFlow, no registration."""
+    dataset_dir = pathlib.Path(dataset_dir)
+    if not (dataset_dir / "dataset_info.json").is_file():
+        raise FileNotFoundError(f"{dataset_dir} is not a written TFDS dataset (no dataset_info.json)")
+    return dict(tfds.builder_from_directory(str(dataset_dir)).as_data_source())

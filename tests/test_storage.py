@@ -1,0 +1,174 @@
+"""TFDS array_record builders (no TensorFlow) and the grain pipeline: round trips, shards, resume."""
+
+import json
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from kosmos_jax.data import cornell
+from kosmos_jax.storage import pipeline
+from kosmos_jax.storage.tfds_builders import CORNELL_SPLIT, build_cornell, open_splits, png_bytes, write_instruct_grasp
+
+LENGTH, SIZE = 80, 16
+
+
+def _record(index: int, answers: int = 2) -> dict:
+    rng = np.random.default_rng(index)
+    tokens = rng.integers(4, 500, LENGTH).astype(np.int32)
+    return {
+        "image": png_bytes(rng.integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8)),
+        "tokens": tokens,
+        "loss_mask": np.arange(LENGTH) > 70,
+        "image_mask": (np.arange(LENGTH) >= 2) & (np.arange(LENGTH) < 66),
+        "length": np.int32(75),
+        "truncated": False,
+        "grasp": np.array([index, 2, 3, 4, 0.5], np.float32),
+        "grasp_mask": np.array([1, 1, 0, 0, 1], bool),
+        "answers": rng.uniform(0, SIZE, (answers, 5)).astype(np.float32),
+        "kind": "name",
+        "scene": "single",
+        "part": "location",
+        "instruction": f"Grasp object {index}.",
+        "target_text": "Grasp center point coordinates: x_1,y_2",
+        "photo_ids": [f"pcd{index:04d}"],
+        "object_ids": np.array([index % 3], np.int64),
+        "target": np.int32(0),
+    }
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    out = tmp_path_factory.mktemp("instruct")
+    records = {"train": [_record(i) for i in range(23)], "test": [_record(100 + i, answers=1 + i) for i in range(5)]}
+    path = write_instruct_grasp(records, out, max_length=LENGTH, image_size=SIZE, kinds=("name",), fold=2)
+    return path, records
+
+
+def test_no_tensorflow_needed(written):
+    assert "tensorflow" not in sys.modules
+
+
+def test_instruct_grasp_round_trip(written):
+    path, records = written
+    assert "honest-image-fold2-name-aug1-xya" in str(path)
+    splits = open_splits(path)
+    assert sorted(splits) == ["test", "train"] and len(splits["train"]) == 23 and len(splits["test"]) == 5
+    stored = {bytes(r["instruction"]).decode(): r for r in (splits["train"][i] for i in range(23))}
+    for original in records["train"]:
+        back = stored[original["instruction"]]
+        image = cv2.imdecode(np.frombuffer(original["image"], np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+        assert np.array_equal(back["image"], image)  # PNG is lossless
+        assert np.array_equal(back["tokens"], original["tokens"])
+        assert np.array_equal(back["loss_mask"], original["loss_mask"])
+        assert np.array_equal(back["answers"], original["answers"])
+        assert [bytes(p).decode() for p in back["photo_ids"]] == original["photo_ids"]
+        assert back["object_ids"].tolist() == original["object_ids"].tolist()
+
+
+def _cornell_folder(root):
+    rng = np.random.default_rng(3)
+    corners = "10 10\n40 10\n40 20\n10 20\n50.5 60\n70 60\n70 80\n50.5 80\n"
+    for n, with_depth in ((100, True), (101, False)):
+        rgb = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+        cv2.imwrite(str(root / f"pcd{n:04d}r.png"), rgb[..., ::-1])
+        (root / f"pcd{n:04d}cpos.txt").write_text(corners)
+        (root / f"pcd{n:04d}cneg.txt").write_text("")
+        if with_depth:
+            cv2.imwrite(str(root / f"pcd{n:04d}d.tiff"), rng.uniform(0, 1, (48, 64)).astype(np.float32))
+
+
+def test_cornell_folder_round_trip(tmp_path):
+    source = tmp_path / "cornell"
+    source.mkdir()
+    _cornell_folder(source)
+    path = build_cornell(source, tmp_path / "tfds")
+    (split,) = open_splits(path).values()
+    assert len(split) == 2
+    photos = {p.id: p for p in cornell.load_photos(source)}
+    for i in range(2):
+        record = split[i]
+        photo = photos[bytes(record["id"]).decode()]
+        assert np.array_equal(record["rgb"], photo.rgb)
+        assert np.array_equal(record["grasps"], photo.grasps)
+        if photo.depth is None:
+            assert record["depth"].shape == (0, 0)
+        else:
+            assert np.array_equal(record["depth"], photo.depth)
+    assert CORNELL_SPLIT in str(sorted(open_splits(path)))
+
+
+def test_cornell_folder_missing(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nowhere"):
+        build_cornell(tmp_path / "nowhere", tmp_path / "tfds")
+
+
+def _ids(batch):
+    return batch["grasp"][:, 0].astype(int).tolist()
+
+
+def test_batches_shapes_and_padding(written):
+    path, _ = written
+    source = open_splits(path)["test"]
+    (batch,) = list(pipeline.make_dataset(source, batch_size=5, shuffle=False, max_answers=8))
+    assert batch["image"].shape == (5, SIZE, SIZE, 3) and batch["image"].dtype == np.uint8
+    assert batch["tokens"].shape == (5, LENGTH) and batch["tokens"].dtype == np.int32
+    assert batch["answers"].shape == (5, 8, 5)
+    # tfds stores examples in the order of their keys' hashes, so compare as sets
+    assert sorted(batch["answers_mask"].sum(axis=1).tolist()) == [1, 2, 3, 4, 5]
+    for answers, mask in zip(batch["answers"], batch["answers_mask"]):
+        assert np.all(answers[~mask] == 0)
+
+
+def test_shuffle_is_seeded_and_shards_partition(written):
+    path, _ = written
+    source = open_splits(path)["train"]
+    order = lambda **kw: sum((_ids(b) for b in pipeline.make_dataset(source, 1, drop_remainder=False, **kw)), [])
+    assert order(seed=1) == order(seed=1)
+    assert order(seed=1) != order(seed=2)
+    assert sorted(order(seed=1)) == list(range(23))
+    shards = [order(seed=5, process_index=i, process_count=3) for i in range(3)]
+    assert sorted(sum(shards, [])) == list(range(23))
+    assert [len(s) for s in shards] == [8, 8, 7]
+
+
+def test_epochs_reshuffle(written):
+    path, _ = written
+    source = open_splits(path)["train"]
+    ids = sum((_ids(b) for b in pipeline.make_dataset(source, 1, seed=0, num_epochs=2)), [])
+    first, second = ids[:23], ids[23:]
+    assert sorted(first) == sorted(second) == list(range(23)) and first != second
+
+
+def test_iterator_state_restores_exactly(written):
+    path, _ = written
+    source = open_splits(path)["train"]
+    options = pipeline.grain.ReadOptions(num_threads=2, prefetch_buffer_size=4)
+    make = lambda: iter(pipeline.make_dataset(source, batch_size=3, seed=7, num_epochs=None, read_options=options))
+    iterator = make()
+    for _ in range(5):  # 5 + 6 batches of 3 cross the end of the 23-example epoch
+        next(iterator)
+    state = iterator.get_state()
+    json.dumps(state)  # plain data, storable beside a checkpoint
+    expected = [next(iterator) for _ in range(6)]
+    fresh = make()
+    fresh.set_state(state)
+    for want in expected:
+        got = next(fresh)
+        assert got.keys() == want.keys()
+        for name in want:
+            assert np.array_equal(got[name], want[name]), name
+
+
+def test_pipeline_errors(written, tmp_path):
+    path, _ = written
+    source = open_splits(path)["train"]
+    with pytest.raises(ValueError, match="batch_size"):
+        pipeline.make_dataset(source, 0)
+    with pytest.raises(ValueError, match="process_index 3 outside 0..2"):
+        pipeline.make_dataset(source, 1, process_index=3, process_count=3)
+    with pytest.raises(FileNotFoundError, match="not a written TFDS dataset"):
+        open_splits(tmp_path)
+    with pytest.raises(ValueError, match="max_answers=1"):
+        next(iter(pipeline.make_dataset(open_splits(path)["test"], 5, shuffle=False, max_answers=1)))
