@@ -57,7 +57,11 @@ def normalise_text(text: str) -> str:
 _COLOUR_FILLER = {"and", "with", "details", "detail", "accents", "accent", "a", "an", "the", "of", "some", "object"}
 
 
+_COLOUR_SPELLINGS = {"grey": "gray", "colour": "color"}
+
+
 def colour_terms(colour: str) -> frozenset[str]:
-    """The colour words of a colour phrase: "green, yellow, and silver" -> {green, yellow, silver}."""
+    """The colour words of a colour phrase: "green, yellow, and silver" -> {green, yellow, silver}
+    ("grey" and "gray" are one word)."""
     tokens = re.findall(r"[a-z]+(?:-[a-z]+)?", normalise_text(colour))
-    return frozenset(t for t in tokens if t not in _COLOUR_FILLER)
+    return frozenset(_COLOUR_SPELLINGS.get(t, t) for t in tokens if t not in _COLOUR_FILLER)

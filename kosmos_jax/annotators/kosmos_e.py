@@ -2,9 +2,9 @@
 
 One entry per photo: obj_name, instruction_name / _color / _shape / _purpose / _strategy (whole
 sentences) and instruction_part ({"0": sentence, ...}, one per non-NaN rectangle in file order).
-The reader in kosmos_jax/data attaches an entry to `Photo.annotations`; this module accepts the
-raw entry keys above as well as the words keys "name", "colour", "shape", "purpose", "strategy",
-"parts" (where a reader has already split them out).
+The reader kosmos_jax/data/kosmos_e_annotations.py attaches an entry to `Photo.annotations`
+(the raw entry under "instructions", the object name under "name"); this module reads either that
+or a raw entry.
 
 The sentences are kept verbatim for the instructions, and the slot words are cut out of them for
 the ambiguity checks of the mosaics. The file holds GPT-4V answers that are not instructions
@@ -15,6 +15,7 @@ template; a part becomes missing for that grasp). `junk_sentences` lists them.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from typing import Any, Mapping
 
@@ -28,9 +29,9 @@ RAW_KEYS = {
     "strategy": "instruction_strategy",
 }
 
-_BODY = re.compile(r"^gr(?:asp|sap) the (.+?)\.?$", re.IGNORECASE)  # "Grsap" is in the file
-_PURPOSE = re.compile(r"^grasp the (?:object|obejct|item) (?:that is )?(?:used )?for (.+?)\.?$", re.IGNORECASE)
-_PART = re.compile(r"^grasp the (.+?) of (?:the |an? )?.+?\.?$", re.IGNORECASE)
+_BODY = re.compile(r"^gr(?:asp|sap) the (.+?)\.*$", re.IGNORECASE)  # "Grsap" is in the file
+_PURPOSE = re.compile(r"^grasp the (?:object|obejct|item) (?:that is )?(?:used )?for (.+?)\.*$", re.IGNORECASE)
+_PART = re.compile(r"^grasp the (.+?) of (?:the |an? )?.+?\.*$", re.IGNORECASE)
 
 
 def _clean(text: Any) -> str | None:
@@ -74,13 +75,6 @@ def part_words(sentence: str) -> str | None:
     return match.group(1) if match else None
 
 
-def _raw(entry: Mapping[str, Any], key: str) -> Any:
-    if key in entry:
-        return entry[key]
-    nested = entry.get("instructions")
-    return nested.get(key) if isinstance(nested, Mapping) else None
-
-
 def _part_sentences(raw: Any) -> list[str | None]:
     if raw is None:
         return []
@@ -93,22 +87,20 @@ def _part_sentences(raw: Any) -> list[str | None]:
 
 
 def words_from_entry(entry: Mapping[str, Any]) -> ObjectWords:
-    """ObjectWords from one KOSMOS-E entry (raw JSON keys or a reader's words keys)."""
+    """ObjectWords from one KOSMOS-E entry: the raw JSON entry, or the `Photo.annotations` of
+    kosmos_jax.data.kosmos_e_annotations (which keeps the raw entry under "instructions")."""
+    raw = entry.get("instructions")
+    if isinstance(raw, Mapping):
+        return dataclasses.replace(words_from_entry(raw), name=_clean(entry.get("name")) or _clean(raw.get("obj_name")))
     sentences: dict[str, Any] = {}
     fields: dict[str, str | None] = {}
     for kind, raw_key in RAW_KEYS.items():
-        sentence = _clean(_raw(entry, raw_key))
+        sentence = _clean(entry.get(raw_key))
         if is_instruction(sentence, kind):
             sentences[kind] = sentence
-        given = _clean(entry.get(kind) if kind != "colour" else entry.get("colour", entry.get("color")))
-        fields[kind] = given if given is not None else (slot_words(kind, sentences[kind]) if kind in sentences else None)
-    name = _clean(entry.get("name")) or _clean(entry.get("obj_name")) or fields["name"]
-    part_sentences = [s if is_instruction(s, "part") else None for s in _part_sentences(_raw(entry, "instruction_part"))]
-    given_parts = entry.get("parts")
-    if given_parts is not None:
-        parts = tuple(_clean(p) for p in given_parts)
-    else:
-        parts = tuple(part_words(s) if s else None for s in part_sentences)
+        fields[kind] = slot_words(kind, sentences[kind]) if kind in sentences else None
+    name = _clean(entry.get("obj_name")) or fields["name"]
+    part_sentences = [s if is_instruction(s, "part") else None for s in _part_sentences(entry.get("instruction_part"))]
     if any(part_sentences):
         sentences["part"] = tuple(part_sentences)
     return ObjectWords(
@@ -117,7 +109,7 @@ def words_from_entry(entry: Mapping[str, Any]) -> ObjectWords:
         shape=fields["shape"],
         purpose=fields["purpose"],
         strategy=fields["strategy"],
-        parts=parts,
+        parts=tuple(part_words(s) if s else None for s in part_sentences),
         sentences=sentences,
     )
 
@@ -138,6 +130,7 @@ def words_from_photo(photo) -> ObjectWords:
 
 def junk_sentences(entry: Mapping[str, Any]) -> list[tuple[str, str]]:
     """(kind, sentence) of every annotation sentence that is not an instruction."""
-    junk = [(k, s) for k, key in RAW_KEYS.items() if (s := _clean(_raw(entry, key))) and not is_instruction(s, k)]
-    junk += [("part", s) for s in _part_sentences(_raw(entry, "instruction_part")) if s and not is_instruction(s, "part")]
+    entry = entry.get("instructions", entry)
+    junk = [(k, s) for k, key in RAW_KEYS.items() if (s := _clean(entry.get(key))) and not is_instruction(s, k)]
+    junk += [("part", s) for s in _part_sentences(entry.get("instruction_part")) if s and not is_instruction(s, "part")]
     return junk

@@ -21,7 +21,12 @@ def object_sentence(words: ObjectWords | None, kind: str, photo_id: str) -> str:
     verbatim = words.sentences.get(kind)
     if verbatim:
         return _as_sentence(verbatim)
-    return _as_sentence(TEMPLATES[kind].format(**{kind: getattr(words, kind)}))
+    value = getattr(words, kind)
+    if kind == "colour" and " with " in value:
+        # "black with yellow details" -> "Grasp the black object with yellow details." (section II)
+        head, tail = value.split(" with ", 1)
+        return _as_sentence(f"{TEMPLATES[kind].format(colour=head)[:-1]} with {tail}")
+    return _as_sentence(TEMPLATES[kind].format(**{kind: value}))
 
 
 def part_sentence(words: ObjectWords | None, grasp_id: int, photo_id: str) -> str:
