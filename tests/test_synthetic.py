@@ -248,7 +248,8 @@ def test_reader_reads_synthetic_output_back(dataset):
         expected = geometry.corners_to_grasps(parse_rectangles(paths["cpos.txt"]))
         np.testing.assert_allclose(photo.grasps, expected)
         assert photo.negatives.shape == (len(parse_rectangles(paths["cneg.txt"])), 5)
-        assert (photo.object_id, photo.category) == (meta["photos"][photo.id]["object_id"], meta["photos"][photo.id]["category"])
+        written = meta["photos"][photo.id]
+        assert (photo.object_id, photo.category) == (written["object_id"], written["category"])
         assert photo.rgb.shape == (480, 640, 3)
         np.testing.assert_array_equal(photo.depth, tifffile.imread(paths["d.tiff"]))
         assert photo.nan_dropped == 0
@@ -357,7 +358,8 @@ def test_cli_refuses_to_clobber_and_overwrites_only_its_own_output(tmp_path, cap
     assert "wrote 3 photos" in capsys.readouterr().err
     (out / "extra.txt").write_text("user file")
     assert synthetic.main(["--out", str(out), "--photos", "1", "--overwrite"]) == 0
-    assert sorted(p.name for p in (out / "01").iterdir()) == [f"pcd0100{k}" for k in ("cneg.txt", "cpos.txt", "d.tiff", "r.png")]
+    expected = [f"pcd0100{k}" for k in ("cneg.txt", "cpos.txt", "d.tiff", "r.png")]
+    assert sorted(p.name for p in (out / "01").iterdir()) == expected
     assert json.loads((out / "synthetic_meta.json").read_text())["count"] == 1
     assert (out / "extra.txt").exists()
 
@@ -374,3 +376,23 @@ def test_write_dataset_rejects_bad_arguments(tmp_path):
             synthetic.write_dataset(tmp_path / "x", photos, 0)
     with pytest.raises(ValueError, match="seed must be a non-negative integer"):
         synthetic.write_dataset(tmp_path / "x", 1, -5)
+
+
+def test_make_scene_is_a_pure_function_of_its_generator():
+    from kosmos_jax.data.synthetic_objects import sample_object
+    from kosmos_jax.data.synthetic_render import make_background
+
+    spec = sample_object(np.random.default_rng(0), "Mug", 0)
+    background = make_background(np.random.default_rng(1), "pcdb_0001")
+    one = synthetic.make_scene(np.random.default_rng(2), spec, background)
+    two = synthetic.make_scene(np.random.default_rng(2), spec, background)
+    three = synthetic.make_scene(np.random.default_rng(3), spec, background)
+    np.testing.assert_array_equal(one.rgb, two.rgb)
+    np.testing.assert_array_equal(one.depth, two.depth)
+    np.testing.assert_array_equal(one.positives, two.positives)
+    assert one.meta == two.meta and one.meta["pose"] != three.meta["pose"]
+    assert one.rgb.shape == (480, 640, 3) and one.depth.shape == (480, 640)
+    assert one.positives.shape[1:] == (4, 2) and len(one.positives) == len(one.meta["grasp_parts"])
+    assert one.negatives.shape[1:] == (4, 2) and len(one.negatives) == len(one.meta["negative_kinds"])
+    with pytest.raises(ValueError, match="unknown synthetic category 'Teapot'"):
+        sample_object(np.random.default_rng(0), "Teapot", 0)

@@ -210,7 +210,8 @@ def _prepare_out(out: pathlib.Path, overwrite: bool) -> None:
         if not overwrite:
             raise ValueError(f"--out {out} is not empty; pass --overwrite to replace a synthetic dataset there")
         if not (out / META_NAME).is_file():
-            raise ValueError(f"refusing to overwrite {out}: it holds no {META_NAME}, so it may not be a synthetic dataset")
+            raise ValueError(
+                f"refusing to overwrite {out}: it holds no {META_NAME}, so it may not be a synthetic dataset")
         for child in sorted(out.iterdir()):
             if child.name == META_NAME:
                 child.unlink()

@@ -136,7 +136,7 @@ def shade(colour, factor):
 def build_mug(rng):
     colour = pick(rng, ["red", "blue", "white", "green", "yellow", "black", "orange"])
     radius = rng.uniform(27, 36)
-    handle_len = rng.uniform(14, 20)
+    handle_len = rng.uniform(18, 25)
     handle_hw = rng.uniform(4.0, 5.5)
     body = PartShape("body", ellipse(0, 0, radius, radius), rgb(colour), rng.uniform(0.08, 0.1), False,
                      spine=np.zeros((1, 2)), isotropic=True, weight=1.0)
@@ -278,7 +278,8 @@ def build_scissors(rng):
         parts.append(PartShape(name, ellipse(cx, cy, ring_a, ring_b, 36), rgb(colour), 0.01, False,
                                holes=(ellipse(cx, cy, ring_a - ring_t, ring_b - ring_t, 36)[::-1],)))
     return dict(category="Scissors", name="scissors", colours=(colour, "silver"),
-                shape_words=("sharp", "elongated"), shape_phrase="elongated object with two finger loops and pointed blades",
+                shape_words=("sharp", "elongated"),
+                shape_phrase="elongated object with two finger loops and pointed blades",
                 purpose="cutting paper, cloth and other materials",
                 strategy="It has two finger loops and long closed blades. Grasping the closed blades across "
                 "their width ensures stability. The gripper should be perpendicular to the blades.",
@@ -294,7 +295,8 @@ def build_remote(rng):
     decals = [Decal(ellipse(length * 0.35, 0, 4, 4, 16), rgb("red"))]
     for i in range(6):
         for j in (-1, 0, 1):
-            decals.append(Decal(ellipse(-length * 0.3 + i * length * 0.08, j * half_w * 0.5, 2.5, 2.0, 12), button_colour))
+            button = ellipse(-length * 0.3 + i * length * 0.08, j * half_w * 0.5, 2.5, 2.0, 12)
+            decals.append(Decal(button, button_colour))
     return dict(category="Remote_Controller", name="remote control", colours=(colour,),
                 shape_words=("rectangular", "handheld"), shape_phrase="rectangular and handheld object with buttons",
                 purpose="controlling electronic devices wirelessly",

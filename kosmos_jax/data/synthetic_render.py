@@ -59,28 +59,33 @@ def _mix(a, b, t):
     return a + (b - a) * np.clip(t, 0, 1)[..., None]
 
 
+def _muted(colour, keep=0.55):
+    grey = colour.mean()
+    return grey + keep * (colour - grey)
+
+
 def texture(rng, kind, shape=(HEIGHT, WIDTH)):
     """[H, W, 3] float32 RGB 0..255 of a surface `kind`."""
     h, w = shape
     fine = value_noise(rng, shape, max(h, w) / 2, cv2.INTER_LINEAR)
     if kind == "foam":
         base = rng.uniform(215, 245, 3) * np.array([1.0, 0.99, 0.97])
-        img = base + (6 * fractal_noise(rng, shape, 3) + 3 * fine)[..., None]
+        img = base + (8 * fractal_noise(rng, shape, 3) + 3 * fine)[..., None]
     elif kind == "wood":
         light = np.array(rng.choice([[196, 150, 100], [170, 120, 75], [210, 175, 130]]), np.float32)
         dark = light * rng.uniform(0.55, 0.7)
         size = int(math.hypot(h, w)) + 2
         y, x = np.mgrid[0:size, 0:size].astype(np.float32)
-        warp = fractal_noise(rng, (size, size), 3) * 2.5
-        streak = cv2.resize(rng.uniform(-1, 1, (size // 3, 8)).astype(np.float32), (size, size))
-        rings = np.sin(2 * math.pi * (y / rng.uniform(14, 30) + warp)) * 0.5 + 0.5
-        wood = _mix(dark, light, rings ** 1.5 * 0.8 + 0.15 * streak + 0.2)
+        warp = fractal_noise(rng, (size, size), 2, 3) * rng.uniform(0.5, 1.0)
+        streak = cv2.resize(rng.uniform(-1, 1, (size // 2, 10)).astype(np.float32), (size, size))
+        rings = np.sin(2 * math.pi * (y / rng.uniform(9, 20) + warp)) * 0.5 + 0.5
+        wood = _mix(dark, light, rings ** 2 * 0.6 + 0.25 * streak + 0.3)
         turn = cv2.getRotationMatrix2D((size / 2, size / 2), rng.uniform(-90, 90), 1.0)
         turn[:, 2] -= [(size - w) / 2, (size - h) / 2]
         img = cv2.warpAffine(wood, turn, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
         img += (4 * fine)[..., None]
     elif kind == "tiles":
-        a, b = rng.uniform(60, 230, 3), rng.uniform(60, 230, 3)
+        a, b = _muted(rng.uniform(60, 230, 3)), _muted(rng.uniform(60, 230, 3))
         step = rng.uniform(28, 60)
         y, x = np.mgrid[0:h, 0:w].astype(np.float32)
         checker = (np.floor(x / step) + np.floor(y / step)) % 2
@@ -89,7 +94,7 @@ def texture(rng, kind, shape=(HEIGHT, WIDTH)):
         img[grout] *= 0.6
         img += (8 * fractal_noise(rng, shape, 8) + 4 * fine)[..., None]
     elif kind == "cloth":
-        a, b = rng.uniform(40, 220, 3), rng.uniform(40, 220, 3)
+        a, b = _muted(rng.uniform(40, 220, 3)), _muted(rng.uniform(40, 220, 3))
         y, x = np.mgrid[0:h, 0:w].astype(np.float32)
         px, py = rng.uniform(8, 24, 2)
         plaid = 0.5 * (np.sin(2 * math.pi * x / px) > 0) + 0.5 * (np.sin(2 * math.pi * y / py) > 0)
@@ -226,7 +231,7 @@ def render(rng: np.random.Generator, background: Background, spec: ObjectSpec) -
             relief_px[paint] = 0
 
     # Lambertian shading from the relief's normals, plus a highlight on shiny parts.
-    gy, gx = np.gradient(cv2.GaussianBlur(relief_px, (3, 3), 0.8))
+    gy, gx = np.gradient(cv2.GaussianBlur(relief_px, (0, 0), 1.5))  # blur: no creases on the medial axis
     normal = np.stack([-gx, -gy, np.ones_like(gx)], -1)
     normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     lambert = np.clip(normal @ background.light.astype(np.float32), 0, 1)
