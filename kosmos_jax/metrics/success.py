@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from kosmos_jax import geometry
-from kosmos_jax.metrics.exact_iou import exact_iou
+from kosmos_jax.metrics.exact_iou import exact_iou, unstack
 from kosmos_jax.metrics.reference_iou import reference_iou
 
 BACKENDS = ("exact", "reference")
@@ -50,11 +50,8 @@ _exact_iou_jit = jax.jit(exact_iou)
 _reference_iou_jit = jax.jit(reference_iou, static_argnums=2)
 
 
-def predicted_rectangles(pred, gts, gt_mask, wh_policy: str):
-    """[B, M, 5] rectangles to compare with each ground truth, after the w/h policy."""
-    _check("wh_policy", wh_policy, WH_POLICIES)
-    xy = pred[:, None, 0:2]
-    theta = pred[:, None, -1:]
+def _borrowed_size(pred, gts, gt_mask, wh_policy):
+    """[B, M, 2] (w, h) of the prediction against each ground truth, by the w/h policy."""
     if wh_policy == "per_gt":
         wh = gts[..., 2:4]
     elif wh_policy == "kosmos_e":
@@ -66,6 +63,15 @@ def predicted_rectangles(pred, gts, gt_mask, wh_policy: str):
         if pred.shape[-1] != 5:
             raise ValueError("wh_policy 'predicted' needs predictions [B, 5] (x, y, w, h, theta)")
         wh = jnp.broadcast_to(pred[:, None, 2:4], gts[..., 2:4].shape)
+    return wh
+
+
+def predicted_rectangles(pred, gts, gt_mask, wh_policy: str):
+    """[B, M, 5] rectangles to compare with each ground truth, after the w/h policy."""
+    _check("wh_policy", wh_policy, WH_POLICIES)
+    xy = pred[:, None, 0:2]
+    theta = pred[:, None, -1:]
+    wh = _borrowed_size(pred, gts, gt_mask, wh_policy)
     xy = jnp.broadcast_to(xy, gts[..., 0:2].shape)
     theta = jnp.broadcast_to(theta, gts[..., 4:5].shape)
     return jnp.concatenate([xy, wh, theta], axis=-1)
@@ -73,14 +79,15 @@ def predicted_rectangles(pred, gts, gt_mask, wh_policy: str):
 
 @functools.partial(jax.jit, static_argnames=("backend", "wh_policy", "max_rows"))
 def _success(pred, gts, gt_mask, angle_threshold, iou_threshold, backend, wh_policy, max_rows):
-    rects = predicted_rectangles(pred, gts, gt_mask, wh_policy)
-    if backend == "exact":
-        iou = exact_iou(rects, gts)
+    if backend == "exact":  # fields kept apart: no [B, M, 5] array is built
+        wh = _borrowed_size(pred, gts, gt_mask, wh_policy)
+        iou = exact_iou((pred[:, None, 0], pred[:, None, 1], wh[..., 0], wh[..., 1], pred[:, None, -1]), unstack(gts))
     else:
-        iou = reference_iou(rects, gts, max_rows)
-    angle_ok = geometry.angle_difference(rects[..., 4], gts[..., 4]) <= angle_threshold + ANGLE_TOLERANCE
-    hit = gt_mask & angle_ok & (iou > iou_threshold)
-    return jnp.any(hit, axis=1), jnp.max(jnp.where(gt_mask & angle_ok, iou, 0.0), axis=1)
+        iou = reference_iou(predicted_rectangles(pred, gts, gt_mask, wh_policy), gts, max_rows)
+    angle_ok = geometry.angle_difference(pred[:, None, -1], gts[..., 4]) <= angle_threshold + ANGLE_TOLERANCE
+    # One reduction serves both outputs (a second one over the IoU splits XLA's fusion).
+    best = jnp.max(jnp.where(gt_mask & angle_ok & ~jnp.isnan(iou), iou, -1.0), axis=1)
+    return best > iou_threshold, jnp.maximum(best, 0.0)
 
 
 def grasp_success(
