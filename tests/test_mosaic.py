@@ -198,3 +198,29 @@ def test_cell_position_rejects_distractors_in_the_target_cell():
                    enumerate(pool[[p.photo_id for p in pool].index(pid)] for pid in sample.photo_ids)]
         cells = [tuple(int(c) for c in np.clip(np.floor(3 * c / TILE), 0, 2)) for c in centres]
         assert cells.count((1, 1)) == 1, (seed, sample.photo_ids, cells)
+
+
+def test_real_annotated_photos_make_unambiguous_mosaics(cornell_root, kosmos_e_annotations):
+    from kosmos_jax.annotators.base import colour_terms
+    from kosmos_jax.annotators.kosmos_e import words_from_photo
+    from kosmos_jax.data import cornell, kosmos_e_annotations as reader
+
+    annotations = reader.read_annotations(kosmos_e_annotations)
+    photos = [annotations.attach(p) for p in cornell.load_photos(cornell_root, load_images=False)]
+    blank = np.zeros((TILE, TILE, 3), np.uint8)
+    pool = [View(p.id, blank, p.grasps / 3, words_from_photo(p), p.object_id) for p in photos]
+    rng = np.random.default_rng(0)
+    for kind in ("name", "colour", "shape", "purpose", "strategy"):
+        for target in range(0, len(pool), 10):
+            sample = mosaic.build_mosaic(pool, target, kind, rng)
+            by_id = {v.photo_id: v for v in pool}
+            target_words = pool[target].words
+            for q, photo_id in enumerate(sample.photo_ids):
+                if q == sample.target:
+                    continue
+                other = by_id[photo_id]
+                assert other.object_id != pool[target].object_id
+                if kind == "colour":
+                    assert not colour_terms(target_words.colour) <= colour_terms(other.words.colour)
+                else:
+                    assert getattr(other.words, kind).lower() != getattr(target_words, kind).lower()
