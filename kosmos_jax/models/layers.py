@@ -1,0 +1,68 @@
+"""Building blocks shared by the vision tower, the connector and the decoder.
+
+Parameters are float32 and carry logical axis names; matmuls run in the configured compute dtype;
+LayerNorm and softmax run in float32. Kernels are stored (in, out), the Flax layout; the importer
+transposes PyTorch's (out, in).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+
+from kosmos_jax.models.sharding import constrain, logical
+
+
+def dense(in_features: int, out_features: int, axes: tuple[str, str], rngs: nnx.Rngs, *, std: float,
+          dtype=jnp.float32, use_bias: bool = True) -> nnx.Linear:
+    return nnx.Linear(
+        in_features, out_features, use_bias=use_bias, dtype=dtype, param_dtype=jnp.float32,
+        kernel_init=logical(jax.nn.initializers.normal(std), axes),
+        bias_init=logical(jax.nn.initializers.zeros, (axes[1],)),
+        rngs=rngs,
+    )
+
+
+class LayerNorm(nnx.LayerNorm):
+    """PyTorch's LayerNorm: eps 1e-5, exact two-pass variance, computed in float32, cast back."""
+
+    def __init__(self, features: int, eps: float, rngs: nnx.Rngs, axis_name: str = "norm"):
+        super().__init__(
+            features, epsilon=eps, dtype=jnp.float32, param_dtype=jnp.float32, use_fast_variance=False,
+            scale_init=logical(jax.nn.initializers.ones, (axis_name,)),
+            bias_init=logical(jax.nn.initializers.zeros, (axis_name,)),
+            rngs=rngs,
+        )
+
+    def __call__(self, x):
+        return super().__call__(x.astype(jnp.float32)).astype(x.dtype)
+
+
+def gelu_exact(x):
+    return jax.nn.gelu(x, approximate=False)  # PyTorch's nn.GELU() default: erf, not tanh
+
+
+def quick_gelu(x):
+    return x * jax.nn.sigmoid(1.702 * x)
+
+
+def split_heads(x: jax.Array, num_heads: int) -> jax.Array:
+    return x.reshape(*x.shape[:-1], num_heads, x.shape[-1] // num_heads)
+
+
+def dot_product_attention(q, k, v, mask, dropout: nnx.Dropout | None = None):
+    """q [B,T,H,D], k/v [B,S,H,D], mask broadcastable to [B,H,T,S] (True = attend) or None.
+
+    Scores and softmax in float32. A row with no allowed key (a padding query) gets uniform
+    weights instead of NaN, as PyTorch's additive finfo.min mask does.
+    """
+    scale = q.shape[-1] ** -0.5
+    scores = jnp.einsum("bthd,bshd->bhts", q, k, preferred_element_type=jnp.float32) * scale
+    if mask is not None:
+        scores = jnp.where(mask, scores, jnp.finfo(jnp.float32).min)
+    weights = jax.nn.softmax(scores, axis=-1)
+    if dropout is not None:
+        weights = dropout(weights)
+    out = jnp.einsum("bhts,bshd->bthd", weights.astype(v.dtype), v)
+    return constrain(out, ("batch", "length", "act_heads", None))

@@ -1,0 +1,149 @@
+"""The model's structure: sizes, parameter count, logical axes, init switches, dtype policy."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from kosmos_jax.models import config as config_lib
+from kosmos_jax.models import sharding
+from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, build, param_count
+from kosmos_jax.models.summary import summarize
+
+
+def tiny_inputs(cfg, batch=2, length=9, seed=0):
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(4, cfg.text.vocab_size, (batch, length))
+    image_mask = np.zeros((batch, length), bool)
+    image_mask[:, 1:1 + cfg.latent_query_num] = True
+    size = cfg.vision.image_size
+    pixels = rng.normal(size=(batch, size, size, 3)).astype(np.float32)
+    return jnp.asarray(ids), jnp.ones((batch, length), bool), jnp.asarray(image_mask), jnp.asarray(pixels)
+
+
+def test_kosmos2_parameter_count_is_exact_from_shapes_only():
+    summary = summarize(config_lib.get_config("kosmos2"))
+    assert summary["total"] == 1_664_485_376
+    # independent count by formula: vision tower, connector, decoder (tied head counted once)
+    d, f, layers = 1024, 4096, 24
+    vision = d + 3 * 14 * 14 * d + 257 * d + 2 * 2 * d + layers * (4 * (d * d + d) + d * f + f + f * d + d + 4 * d)
+    t, tf = 2048, 8192
+    connector = d * t + t + 64 * t + 4 * (t * t + t)
+    text = 65037 * t + 2 * t + layers * (4 * (t * t + t) + 2 * t + 2 * t + t * tf + tf + tf * t + t + 2 * tf + 2 * t)
+    assert vision + connector + text == summary["total"]
+    assert summary["parts"]["text_model.embed_tokens (tied lm_head)"] == 65037 * t
+
+
+def test_parameter_names_mirror_transformers_keys():
+    flat = nnx.to_flat_state(nnx.state(abstract_model(config_lib.get_config("tiny")), nnx.Param))
+    names = {".".join(map(str, path)) for path, _ in flat}
+    for expected in (
+        "vision_model.model.embeddings.patch_embedding.kernel",
+        "vision_model.model.pre_layrnorm.scale",
+        "vision_model.model.encoder.layers.1.self_attn.q_proj.kernel",
+        "vision_model.model.post_layernorm.bias",
+        "image_to_text_projection.latent_query",
+        "image_to_text_projection.x_attn.out_proj.bias",
+        "text_model.model.layers.0.self_attn.inner_attn_ln.scale",
+        "text_model.model.layers.1.ffn.ffn_layernorm.bias",
+        "text_model.model.layers.1.final_layer_norm.scale",
+        "text_model.model.embed_tokens.embedding",
+        "text_model.model.layer_norm.scale",
+    ):
+        assert expected in names, expected
+    assert not any("lm_head" in n for n in names)  # tied to embed_tokens
+
+
+def test_every_parameter_has_logical_axes_covered_by_the_rules():
+    state = nnx.state(abstract_model(config_lib.get_config("tiny")), nnx.Param)
+    rules = dict(sharding.LOGICAL_AXIS_RULES)
+    for path, var in nnx.to_flat_state(state):
+        axes = var.get_metadata().get("logical_axes")
+        assert axes is not None and len(axes) == len(var.shape), path
+        assert all(a in rules for a in axes), (path, axes)
+
+
+def test_rules_map_to_mesh_axes_and_never_reuse_one():
+    assert sharding.mesh_axes_for(("batch", "length", "act_embed")) == jax.sharding.PartitionSpec(("data", "fsdp"), None, None)
+    assert sharding.mesh_axes_for(("embed", "mlp")) == jax.sharding.PartitionSpec("fsdp", "tensor")
+    # batch takes fsdp first, so embed on the same array stays replicated rather than reusing fsdp
+    assert sharding.mesh_axes_for(("batch", "embed")) == jax.sharding.PartitionSpec(("data", "fsdp"), None)
+    with pytest.raises(KeyError, match="no_such_axis"):
+        sharding.mesh_axes_for(("no_such_axis",))
+
+
+def test_sharded_forward_on_a_fake_mesh_matches_unsharded():
+    if len(jax.devices()) < 8:
+        pytest.skip("needs 8 (fake) devices")
+    cfg = config_lib.get_config("tiny")
+    model = build(cfg)
+    model.eval()
+    ids, mask, image_mask, pixels = tiny_inputs(cfg, batch=4)
+    expected = model(ids, mask, image_mask, pixels=pixels)
+    mesh = jax.make_mesh((2, 2, 2), sharding.MESH_AXES, axis_types=(jax.sharding.AxisType.Auto,) * 3)
+    graphdef, state = nnx.split(model)
+    shardings = sharding.param_shardings(state, mesh)
+    state = jax.device_put(state, shardings)
+    kernel = state["text_model"]["model"]["layers"][0]["self_attn"]["out_proj"]["kernel"]
+    assert kernel.get_value().sharding.spec == jax.sharding.PartitionSpec("tensor", "fsdp")
+    fc1 = state["text_model"]["model"]["layers"][0]["ffn"]["fc1"]["kernel"]  # 37 does not split in 2
+    assert fc1.get_value().sharding.spec == jax.sharding.PartitionSpec("fsdp", None)
+
+    @jax.jit
+    def forward(state, ids, mask, image_mask, pixels):
+        return nnx.merge(graphdef, state)(ids, mask, image_mask, pixels=pixels)
+
+    with jax.set_mesh(mesh):
+        got = forward(state, ids, mask, image_mask, pixels)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(expected), atol=2e-5)
+
+
+def test_magneto_gain_scales_exactly_the_four_decoder_projections():
+    plain = build(config_lib.get_config("tiny", magneto_init=False), seed=3)
+    magneto = build(config_lib.get_config("tiny", magneto_init=True), seed=3)
+    gain = math.sqrt(math.log(2 * 2))
+    layer_p, layer_m = plain.text_model.model.layers[1], magneto.text_model.model.layers[1]
+    for name in ("fc1", "fc2"):
+        np.testing.assert_allclose(getattr(layer_m.ffn, name).kernel[...], getattr(layer_p.ffn, name).kernel[...] * gain, rtol=1e-6)
+    for name in ("out_proj", "v_proj"):
+        np.testing.assert_allclose(getattr(layer_m.self_attn, name).kernel[...], getattr(layer_p.self_attn, name).kernel[...] * gain, rtol=1e-6)
+    for name in ("q_proj", "k_proj"):
+        np.testing.assert_array_equal(getattr(layer_m.self_attn, name).kernel[...], getattr(layer_p.self_attn, name).kernel[...])
+    # the connector's attention is not part of the decoder stack
+    np.testing.assert_array_equal(magneto.image_to_text_projection.x_attn.v_proj.kernel[...],
+                                  plain.image_to_text_projection.x_attn.v_proj.kernel[...])
+
+
+def test_dropout_only_in_training_mode():
+    cfg = config_lib.get_config("tiny")
+    model = build(cfg)
+    ids, mask, image_mask, pixels = tiny_inputs(cfg)
+    model.train()
+    a, b = model(ids, mask, image_mask, pixels=pixels), model(ids, mask, image_mask, pixels=pixels)
+    assert not np.allclose(a, b)
+    model.eval()
+    c, d = model(ids, mask, image_mask, pixels=pixels), model(ids, mask, image_mask, pixels=pixels)
+    np.testing.assert_array_equal(c, d)
+
+
+def test_bfloat16_compute_keeps_float32_params_and_logits_close():
+    cfg32 = config_lib.get_config("tiny")
+    model32, model16 = build(cfg32, seed=1), build(cfg32.replace(compute_dtype="bfloat16"), seed=1)
+    model32.eval(), model16.eval()
+    assert {x.dtype for x in jax.tree.leaves(nnx.state(model16, nnx.Param))} == {jnp.dtype(jnp.float32)}
+    ids, mask, image_mask, pixels = tiny_inputs(cfg32)
+    l32, l16 = model32(ids, mask, image_mask, pixels=pixels), model16(ids, mask, image_mask, pixels=pixels)
+    assert l16.dtype == jnp.float32
+    assert float(jnp.max(jnp.abs(l32 - l16))) < 0.1 * float(jnp.max(jnp.abs(l32)))
+    with pytest.raises(ValueError, match="float16"):
+        _ = cfg32.replace(compute_dtype="float16").dtype
+
+
+def test_unknown_size_is_refused():
+    with pytest.raises(ValueError, match="huge"):
+        config_lib.get_config("huge")
+    assert param_count(build(config_lib.get_config("tiny"))) == summarize(config_lib.get_config("tiny"))["total"]
+    assert isinstance(build(config_lib.get_config("tiny")), Kosmos2)
