@@ -396,3 +396,13 @@ def test_make_scene_is_a_pure_function_of_its_generator():
     assert one.negatives.shape[1:] == (4, 2) and len(one.negatives) == len(one.meta["negative_kinds"])
     with pytest.raises(ValueError, match="unknown synthetic category 'Teapot'"):
         sample_object(np.random.default_rng(0), "Teapot", 0)
+
+
+def test_read_meta_returns_the_photos_and_names_a_bad_file(dataset, tmp_path):
+    root, meta = dataset
+    assert synthetic.read_meta(root) == meta["photos"]
+    with pytest.raises(FileNotFoundError, match="synthetic_meta.json not found"):
+        synthetic.read_meta(tmp_path)
+    (tmp_path / "synthetic_meta.json").write_text("{broken")
+    with pytest.raises(ValueError, match="synthetic_meta.json: not valid JSON"):
+        synthetic.read_meta(tmp_path)

@@ -15,6 +15,11 @@ writes, like the real Cornell set (see ../shared/data/README.md):
                                  positive grasp (cpos.txt order), table depth plane, pose
 Every object is seen in several photos (about 3.7, as in Cornell) in different poses. The same
 seed gives the same bytes in every file, and photo k does not depend on how many photos follow it.
+
+API: plan(seed, photos) -> which object each photo shows; make_scene(rng, spec, background) ->
+Scene(rgb, depth, positives, negatives, meta, object_mask); write_dataset(out, photos, seed);
+read_meta(root) -> the per-photo metadata. Objects: synthetic_objects; drawing and depth:
+synthetic_render; grasp rectangles: synthetic_grasps.
 """
 
 from __future__ import annotations
@@ -275,6 +280,20 @@ def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress
     return {"photos": photos, "objects": len(objects),
             "categories": sorted({m["category"] for m in metas.values()}),
             "seconds": round(time.monotonic() - start, 2)}
+
+
+def read_meta(root) -> dict[str, dict]:
+    """The per-photo metadata of a synthetic dataset under `root`: {"pcd0100": {...}, ...}."""
+    path = pathlib.Path(root) / META_NAME
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: {root} is not a synthetic dataset (or predates its metadata)")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    if data.get("generator") != "kosmos_jax.data.synthetic" or "photos" not in data:
+        raise ValueError(f"{path}: not written by kosmos_jax.data.synthetic")
+    return data["photos"]
 
 
 def main(argv=None) -> int:
