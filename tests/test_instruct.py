@@ -1,7 +1,6 @@
 """SINGLE and NON instructions: templates per kind (paper Figs 3-4), per-grasp kinds, errors."""
 
 import json
-import math
 import re
 
 import numpy as np

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 
 from kosmos_jax.annotators.base import MissingWordsError, ObjectWords, require
-from kosmos_jax.instruct.kinds import SINGLE_KINDS, TEMPLATES, check_kind
+from kosmos_jax.instruct.kinds import TEMPLATES, check_kind
 
 
 def _as_sentence(text: str) -> str:
@@ -50,4 +50,4 @@ def position_sentence(position: str) -> str:
     return TEMPLATES["position"].format(position=position)
 
 
-__all__ = ["SINGLE_KINDS", "angle_sentence", "object_sentence", "part_sentence", "position_sentence"]
+__all__ = ["angle_sentence", "object_sentence", "part_sentence", "position_sentence"]
