@@ -47,8 +47,8 @@ def downsample_2x(image):
     return total / 4
 
 
-def tile_images(images: Sequence) -> np.ndarray:
-    """Four [S, S, C] tiles -> one [2S, 2S, C] mosaic in quadrant order."""
+def tile_images(images: Sequence):
+    """Four [S, S, C] tiles -> one [2S, 2S, C] mosaic in quadrant order; numpy or jax."""
     if len(images) != 4:
         raise ValueError(f"a mosaic needs 4 images, got {len(images)}")
     shapes = {tuple(np.shape(i)) for i in images}
@@ -57,13 +57,14 @@ def tile_images(images: Sequence) -> np.ndarray:
     (shape,) = shapes
     if len(shape) != 3 or shape[0] != shape[1]:
         raise ValueError(f"mosaic tiles must be square [S, S, C], got {shape}")
-    top = np.concatenate([images[0], images[1]], axis=1)
-    bottom = np.concatenate([images[2], images[3]], axis=1)
-    return np.concatenate([top, bottom], axis=0)
+    xp = geometry.array_module(*images)
+    top = xp.concatenate([images[0], images[1]], axis=1)
+    bottom = xp.concatenate([images[2], images[3]], axis=1)
+    return xp.concatenate([top, bottom], axis=0)
 
 
-def mosaic_image(images: Sequence) -> np.ndarray:
-    """Four [S, S, C] tiles -> the [S, S, C] mosaic (tiled to 2S, halved)."""
+def mosaic_image(images: Sequence):
+    """Four [S, S, C] tiles -> the [S, S, C] mosaic (tiled to 2S, halved); jit-able."""
     return downsample_2x(tile_images(images))
 
 
