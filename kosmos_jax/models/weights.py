@@ -1,0 +1,188 @@
+"""KOSMOS-2 weights in transformers' folder layout, without torch: import, export, vocabulary growth.
+
+A folder holds `config.json` and either `model.safetensors` or shards listed in
+`model.safetensors.index.json`. The key of every parameter is its nnx path with the leaf renamed
+(kernel/scale/embedding -> weight); Linear kernels are transposed ((out, in) in PyTorch, (in, out)
+here) and the patch-conv kernel permuted ((out, in, kh, kw) there, (kh, kw, in, out) here).
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from safetensors import safe_open
+from safetensors.numpy import save_file
+
+from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
+
+TIED_HEAD = "text_model.lm_head.weight"
+EMBED_TOKENS = "text_model.model.embed_tokens.weight"
+# Buffers some checkpoints carry; computed here, never loaded.
+IGNORED_KEYS = ("vision_model.model.embeddings.position_ids", "text_model.model.embed_positions.weights")
+
+
+def hf_key(path: tuple) -> str:
+    *parents, leaf = (str(p) for p in path)
+    leaf = "weight" if leaf in ("kernel", "scale", "embedding") else leaf
+    return ".".join([*parents, leaf])
+
+
+def to_hf(path: tuple, value: np.ndarray) -> np.ndarray:
+    if str(path[-1]) == "kernel":
+        return np.ascontiguousarray(value.transpose(3, 2, 0, 1) if value.ndim == 4 else value.T)
+    return np.ascontiguousarray(value)
+
+
+def from_hf(path: tuple, value: np.ndarray) -> np.ndarray:
+    if str(path[-1]) == "kernel":
+        return value.transpose(2, 3, 1, 0) if value.ndim == 4 else value.T
+    return value
+
+
+# -- reading ------------------------------------------------------------------------------------
+def read_config(folder: str | pathlib.Path, **runtime) -> Kosmos2Config:
+    path = pathlib.Path(folder) / "config.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no config.json in the checkpoint folder")
+    return Kosmos2Config.from_hf_dict(json.loads(path.read_text()), source=str(path), **runtime)
+
+
+def _weight_files(folder: pathlib.Path) -> dict[str, pathlib.Path]:
+    """key -> file holding it."""
+    index = folder / "model.safetensors.index.json"
+    if index.is_file():
+        weight_map = json.loads(index.read_text()).get("weight_map")
+        if not isinstance(weight_map, dict):
+            raise ValueError(f"{index}: no 'weight_map' object")
+        return {key: folder / name for key, name in weight_map.items()}
+    single = folder / "model.safetensors"
+    if not single.is_file():
+        raise FileNotFoundError(f"{folder}: neither model.safetensors nor model.safetensors.index.json")
+    with safe_open(single, framework="np") as f:
+        return {key: single for key in f.keys()}
+
+
+def read_tensors(folder: str | pathlib.Path) -> dict[str, np.ndarray]:
+    folder = pathlib.Path(folder)
+    by_file: dict[pathlib.Path, list[str]] = {}
+    for key, file in _weight_files(folder).items():
+        by_file.setdefault(file, []).append(key)
+    tensors = {}
+    for file, keys in by_file.items():
+        if not file.is_file():
+            raise FileNotFoundError(f"{file}: shard named in the index is missing")
+        with safe_open(file, framework="np") as f:
+            for key in keys:
+                tensors[key] = f.get_tensor(key)
+    return tensors
+
+
+def _fill_rng_state(rest: nnx.State, seed: int) -> nnx.State:
+    base = jax.random.key(seed)
+    leaves, treedef = jax.tree.flatten(rest)
+    filled = []
+    for i, leaf in enumerate(leaves):
+        if jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+            filled.append(jax.random.fold_in(base, i))
+        else:
+            filled.append(jnp.zeros(leaf.shape, leaf.dtype))
+    return jax.tree.unflatten(treedef, filled)
+
+
+def params_from_tensors(cfg: Kosmos2Config, tensors: dict[str, np.ndarray], source: str = "checkpoint"):
+    """(graphdef, param state, other state shapes) with every parameter taken from `tensors`."""
+    graphdef, params, rest = nnx.split(abstract_model(cfg), nnx.Param, ...)
+    flat = nnx.to_flat_state(params)
+    expected = {hf_key(path): path for path, _ in flat}
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected) - {TIED_HEAD, *IGNORED_KEYS})
+    if missing or unexpected:
+        raise ValueError(f"{source}: keys do not match a {cfg.text.layers}-layer KOSMOS-2: "
+                         f"missing {missing[:8]}{'...' if len(missing) > 8 else ''}, "
+                         f"unexpected {unexpected[:8]}{'...' if len(unexpected) > 8 else ''}")
+    if TIED_HEAD in tensors and not np.array_equal(tensors[TIED_HEAD], tensors[EMBED_TOKENS]):
+        raise ValueError(f"{source}: {TIED_HEAD} differs from {EMBED_TOKENS}; untied heads are not supported")
+    values = []
+    for path, var in flat:
+        key = hf_key(path)
+        value = from_hf(path, tensors[key])
+        if value.shape != var.shape:
+            raise ValueError(f"{source}: {key} has shape {tensors[key].shape}, the config implies "
+                             f"{to_hf(path, np.zeros(var.shape, np.float32)).shape}")
+        values.append(jnp.asarray(value, jnp.float32))
+    params = nnx.from_flat_state([(path, var.replace(value)) for (path, var), value in zip(flat, values)])
+    return graphdef, params, rest
+
+
+def load_pretrained(folder: str | pathlib.Path, seed: int = 0, **runtime) -> Kosmos2:
+    """A Kosmos2 with the weights of a transformers-layout folder (config.json + safetensors)."""
+    cfg = read_config(folder, **runtime)
+    graphdef, params, rest = params_from_tensors(cfg, read_tensors(folder), source=str(folder))
+    return nnx.merge(graphdef, params, _fill_rng_state(rest, seed))
+
+
+# -- writing ------------------------------------------------------------------------------------
+def model_tensors(model: Kosmos2) -> dict[str, np.ndarray]:
+    flat = nnx.to_flat_state(nnx.state(model, nnx.Param))
+    return {hf_key(path): to_hf(path, np.asarray(var.get_value(), np.float32)) for path, var in flat}
+
+
+def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes: int | None = None) -> pathlib.Path:
+    """Write config.json and model.safetensors (or shards + index when over `max_shard_bytes`).
+
+    The tied LM head is not written, as transformers does for tied weights."""
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.json").write_text(json.dumps(model.config.to_hf_dict(), indent=2) + "\n")
+    tensors = model_tensors(model)
+    metadata = {"format": "pt"}
+    total = sum(t.nbytes for t in tensors.values())
+    if max_shard_bytes is None or total <= max_shard_bytes:
+        save_file(tensors, str(folder / "model.safetensors"), metadata=metadata)
+        return folder
+    shards: list[dict[str, np.ndarray]] = [{}]
+    size = 0
+    for key, tensor in tensors.items():
+        if shards[-1] and size + tensor.nbytes > max_shard_bytes:
+            shards.append({})
+            size = 0
+        shards[-1][key] = tensor
+        size += tensor.nbytes
+    weight_map = {}
+    for i, shard in enumerate(shards):
+        name = f"model-{i + 1:05d}-of-{len(shards):05d}.safetensors"
+        save_file(shard, str(folder / name), metadata=metadata)
+        weight_map.update({key: name for key in shard})
+    index = {"metadata": {"total_size": total}, "weight_map": weight_map}
+    (folder / "model.safetensors.index.json").write_text(json.dumps(index, indent=2) + "\n")
+    return folder
+
+
+# -- vocabulary growth --------------------------------------------------------------------------
+def grow_vocabulary(model: Kosmos2, new_vocab_size: int, seed: int = 0, noise: float = 1e-3) -> Kosmos2:
+    """Add rows to the (tied) token embedding, in place; returns the model.
+
+    New rows are the mean of the existing rows plus small noise: the new tokens start with logits
+    near the average one (no token suddenly dominates) and distinct from each other.
+    """
+    embed = model.text_model.model.embed_tokens
+    table = embed.embedding.get_value()
+    old = table.shape[0]
+    if new_vocab_size < old:
+        raise ValueError(f"new vocabulary size {new_vocab_size} is smaller than the current {old}")
+    if new_vocab_size == old:
+        return model
+    mean = table.mean(axis=0)
+    spread = noise * table.std()
+    extra = mean + spread * jax.random.normal(jax.random.key(seed), (new_vocab_size - old, table.shape[1]), table.dtype)
+    embed.embedding.set_value(jnp.concatenate([table, extra], axis=0))
+    embed.num_embeddings = new_vocab_size
+    model.config = model.config.with_vocab_size(new_vocab_size)
+    model.text_model.model.cfg = model.config.text
+    return model
