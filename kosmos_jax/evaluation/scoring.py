@@ -1,0 +1,68 @@
+"""Fold scores of the rectangle metric under a protocol, reported as mean +- std over folds."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from kosmos_jax.data import splits
+from kosmos_jax.evaluation.baselines import ground_truth_mean
+from kosmos_jax.evaluation.views import Views
+from kosmos_jax.metrics import grasp_success
+
+WH_POLICY = {"honest": "per_gt", "paper": "kosmos_e"}
+
+
+@dataclasses.dataclass
+class FoldScores:
+    per_fold: list[float]  # accuracy in percent, one per fold
+    failures: float  # fraction of answers that did not parse (NaN rows), before any substitution
+    views: int
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.per_fold))
+
+    @property
+    def std(self) -> float:
+        return float(np.std(self.per_fold))
+
+    def text(self) -> str:
+        return f"{self.mean:6.2f} +- {self.std:5.2f}"
+
+
+def resolve_failures(pred, views: Views, protocol: str):
+    """Unparseable answers (rows with a NaN): the paper's code swaps in the ground-truth mean;
+    the honest protocol keeps them as failures. Returns (predictions, failure fraction)."""
+    pred = np.asarray(pred, np.float32).copy()
+    failed = np.isnan(pred).any(axis=-1)
+    if protocol == "paper" and failed.any():
+        pred[failed] = ground_truth_mean(views.grasps[failed], views.mask[failed])
+    return pred, float(failed.mean()) if len(failed) else 0.0
+
+
+def view_folds(views: Views, scheme: str, protocol: str, object_of: dict | None = None, k: int = 5, seed: int = 0):
+    """Fold index of every view: honest folds over photos (or objects), paper folds over views."""
+    if protocol == "paper":
+        count = len(views.photo_id)
+        return splits.paper_image_wise_folds(count, k) if scheme == "image" else splits.paper_object_wise_folds(count, k)
+    photo_ids = sorted(set(views.photo_id))
+    if scheme == "image":
+        folds = splits.image_wise_folds(photo_ids, k, seed)
+    else:
+        if object_of is None:
+            raise ValueError("object-wise folds need the object id of every photo")
+        folds = splits.object_wise_folds(photo_ids, [object_of.get(p) for p in photo_ids], k, seed)
+    return np.array([folds[p] for p in views.photo_id])
+
+
+def score(pred, views: Views, folds, protocol: str, backend: str = "exact", k: int = 5) -> FoldScores:
+    """Rectangle-metric accuracy per fold of `pred` [V, 3] on `views` (views without any ground
+    truth left in the crop are skipped: nothing can be scored against them)."""
+    pred, failures = resolve_failures(pred, views, protocol)
+    success = np.asarray(grasp_success(pred, views.grasps, views.mask, backend=backend, wh_policy=WH_POLICY[protocol]))
+    scorable = views.mask.any(axis=1)
+    folds = np.asarray(folds)
+    per_fold = [100.0 * float(success[(folds == f) & scorable].mean()) for f in range(k) if ((folds == f) & scorable).any()]
+    return FoldScores(per_fold, failures, int(scorable.sum()))

@@ -1,0 +1,112 @@
+"""Test views, baselines and fold scoring of the two protocols, and the demo end to end."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from kosmos_jax import demo
+from kosmos_jax.data.photo import Photo
+from kosmos_jax.evaluation import baselines, scoring, views
+
+
+def make_photo(index, grasps, rng):
+    rgb = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    return Photo(id=f"pcd{index:04d}", rgb=rgb, depth=None, grasps=np.asarray(grasps, np.float64), object_id=index % 5)
+
+
+@pytest.fixture
+def photos():
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(10):
+        centre = rng.uniform(250, 390), rng.uniform(180, 300)
+        out.append(make_photo(100 + i, [[*centre, 40, 12, 0.3], [centre[0] + 10, centre[1] - 5, 30, 10, -0.2]], rng))
+    return out
+
+
+def test_honest_views_are_photo_centre_crops_with_grasps_moved(photos):
+    v = views.make_views(photos, "honest")
+    assert v.images.shape == (10, 224, 224, 3) and list(v.copy) == [0] * 10
+    # 351 crop at the photo centre: corner (144.5, 64.5) rounded to (145, 65); then the central 224
+    # starts 63 px further in: a pure shift by (208, 128), pixels copied exactly.
+    left, top = 145 + 63, 65 + 63
+    for i, photo in enumerate(photos):
+        np.testing.assert_array_equal(v.images[i], photo.rgb[top:top + 224, left:left + 224])
+        np.testing.assert_allclose(v.grasps[i, :2, :2], photo.grasps[:, :2] - [left, top], atol=1e-3)
+        np.testing.assert_allclose(v.grasps[i, :2, 2:], photo.grasps[:, 2:], atol=1e-3)
+
+
+def test_paper_views_are_centred_on_the_labels(photos):
+    v = views.make_views(photos, "paper", seed=3)
+    assert len(v.photo_id) == 90 and sorted(set(v.copy)) == list(range(9))
+    # rotation about the crop centre (the label centroid) keeps it there; the shift moves it <= 40 px
+    for row in range(90):
+        kept = v.mask[row]
+        if kept.all():
+            offset = v.grasps[row, :, :2].mean(axis=0) - 112
+            assert np.abs(offset).max() <= 41.5
+    again = views.make_views(photos, "paper", seed=3)
+    np.testing.assert_array_equal(again.grasps, v.grasps)
+
+
+def test_views_reject_bad_input(photos):
+    with pytest.raises(ValueError, match="protocol"):
+        views.make_views(photos, "leaky")
+    photos[0].rgb = None
+    with pytest.raises(ValueError, match="pcd0100"):
+        views.make_views(photos, "honest")
+
+
+def test_ground_truth_mean_treats_angles_as_axes():
+    grasps = np.array([[[10.0, 20.0, 30.0, 10.0, math.radians(89)], [30.0, 40.0, 30.0, 10.0, math.radians(-89)]]])
+    mean = baselines.ground_truth_mean(grasps, np.array([[True, True]]))[0]
+    assert mean[:2] == pytest.approx([20.0, 30.0])
+    assert abs(abs(mean[2]) - math.pi / 2) < 1e-5  # not 0, which the plain mean gives
+    empty = baselines.ground_truth_mean(grasps, np.array([[False, False]]))
+    assert np.isnan(empty).all()
+    assert baselines.image_centre(grasps, None).tolist() == [[112.0, 112.0, 0.0]]
+
+
+def crafted_views(count=10):
+    grasps = np.zeros((count, 2, 5), np.float32)
+    grasps[:, 0] = [100.0, 100.0, 40.0, 10.0, 0.0]
+    mask = np.zeros((count, 2), bool)
+    mask[:, 0] = True
+    return views.Views(np.zeros((count, 1, 1, 3), np.uint8), grasps, mask, [f"p{i}" for i in range(count)], np.zeros(count, int), 0)
+
+
+def test_score_counts_per_fold_and_failures_by_protocol():
+    v = crafted_views()
+    pred = np.tile([[100.0, 100.0, 0.0]], (10, 1))
+    pred[:3] = np.nan  # three unparseable answers
+    folds = np.arange(10) % 5
+    honest = scoring.score(pred, v, folds, "honest")
+    assert honest.failures == pytest.approx(0.3)
+    assert honest.per_fold == [50.0, 50.0, 50.0, 100.0, 100.0]  # views 0, 1, 2 sit in folds 0, 1, 2
+    paper = scoring.score(pred, v, folds, "paper")  # the ground-truth mean stands in for failures
+    assert paper.per_fold == [100.0] * 5 and paper.mean == 100.0 and paper.std == 0.0
+
+
+def test_honest_folds_keep_photos_and_objects_together():
+    v = crafted_views()
+    v.photo_id = [f"p{i // 2}" for i in range(10)]  # two views per photo
+    folds = scoring.view_folds(v, "image", "honest")
+    assert all(folds[i] == folds[i + 1] for i in range(0, 10, 2))
+    object_of = {f"p{i}": i % 5 for i in range(5)}
+    assert len(set(scoring.view_folds(v, "object", "honest", object_of).tolist())) == 5
+    with pytest.raises(ValueError, match="object"):
+        scoring.view_folds(v, "object", "honest")
+
+
+def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys):
+    assert demo.main(["--out", str(tmp_path), "--photos", "24", "--cornell", str(tmp_path / "absent")]) == 0
+    rows = json.loads((tmp_path / "baselines.json").read_text())
+    assert {r["data"] for r in rows} == {"synthetic"}
+    combos = {(r["protocol"], r["split"], r["backend"], r["predictor"]) for r in rows}
+    assert len(combos) == 2 * 2 * 2 * 2
+    oracle = [r for r in rows if r["predictor"] == "gt_mean_oracle" and r["protocol"] == "honest"]
+    centre = [r for r in rows if r["predictor"] == "image_centre" and r["protocol"] == "honest"]
+    assert min(r["mean"] for r in oracle) > max(r["mean"] for r in centre)
+    assert "image-wise" in capsys.readouterr().out
