@@ -1,0 +1,67 @@
+"""Greedy decoding: the KV cache changes nothing, left padding changes nothing, and it matches transformers."""
+
+import pathlib
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from kosmos_jax.models import decode, weights
+
+FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
+NEW = 4
+
+
+@pytest.fixture(scope="module")
+def setup():
+    ref = dict(np.load(FIXTURE / "reference.npz"))
+    model = weights.load_pretrained(FIXTURE)
+    model.eval()
+    args = (jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
+            jnp.asarray(ref["image_embeds_position_mask"], bool), jnp.asarray(ref["image_embeds"]))
+    return model, ref, args
+
+
+def test_cached_and_uncached_decoding_agree(setup):
+    model, _, args = setup
+    cached, cached_logits = decode.generate(model, *args, max_new_tokens=NEW, use_cache=True, return_logits=True)
+    plain, plain_logits = decode.generate(model, *args, max_new_tokens=NEW, use_cache=False, return_logits=True)
+    np.testing.assert_array_equal(np.asarray(cached), np.asarray(plain))
+    np.testing.assert_allclose(np.asarray(cached_logits), np.asarray(plain_logits), atol=1e-5)
+    # and the last step's logits equal one forward pass over prompt + generated tokens
+    ids, mask, image_mask, embeds = args
+    full_ids = jnp.concatenate([ids, cached[:, :-1]], axis=1)
+    full_mask = jnp.concatenate([mask, jnp.ones_like(cached[:, :-1], bool)], axis=1)
+    full_image = jnp.concatenate([image_mask, jnp.zeros_like(cached[:, :-1], bool)], axis=1)
+    logits = model(full_ids, full_mask, full_image, image_embeds=embeds)
+    np.testing.assert_allclose(np.asarray(logits[:, ids.shape[1] - 1:]), np.asarray(cached_logits), atol=1e-5)
+
+
+def test_greedy_tokens_match_transformers_generate(setup):
+    model, ref, args = setup
+    tokens = decode.generate(model, *args, max_new_tokens=NEW)
+    # the fixture's greedy ids are for the unpadded rows (transformers shifts padded rows' positions)
+    np.testing.assert_array_equal(np.asarray(tokens[:-1]), ref["greedy_ids"])
+
+
+def test_left_padding_changes_nothing(setup):
+    model, ref, args = setup
+    ids, mask, image_mask, embeds = args
+    batched, batched_logits = decode.generate(model, *args, max_new_tokens=NEW, return_logits=True)
+    pad = int((~mask[-1]).sum())
+    alone, alone_logits = decode.generate(model, ids[-1:, pad:], mask[-1:, pad:], image_mask[-1:, pad:], embeds[-1:],
+                                          max_new_tokens=NEW, return_logits=True)
+    np.testing.assert_array_equal(np.asarray(batched[-1:]), np.asarray(alone))
+    np.testing.assert_allclose(np.asarray(batched_logits[-1:]), np.asarray(alone_logits), atol=1e-5)
+
+
+def test_rows_stop_at_eos_and_then_emit_padding(setup):
+    model, _, args = setup
+    cfg = model.config.text
+
+    class ForceEos(decode.NoConstraint):
+        def allowed(self, state, vocab_size):
+            return jnp.zeros((state.shape[0], vocab_size), bool).at[:, cfg.eos_token_id].set(True)
+
+    tokens = np.asarray(decode.generate(model, *args, max_new_tokens=3, constraint=ForceEos()))
+    assert (tokens[:, 0] == cfg.eos_token_id).all() and (tokens[:, 1:] == cfg.pad_token_id).all()
