@@ -18,9 +18,11 @@ Two builders:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import inspect
 import pathlib
+import sys
 from typing import Iterable, Mapping
 
 import cv2
@@ -39,10 +41,19 @@ def png_bytes(rgb: np.ndarray) -> bytes:
     rgb = np.asarray(rgb)
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected an RGB uint8 [H, W, 3] image, got {rgb.dtype} {rgb.shape}")
-    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    # level 1: about 3x faster than OpenCV's default 3 and a few percent larger
+    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
     if not ok:
         raise ValueError(f"OpenCV could not encode an image of shape {rgb.shape} as PNG")
     return encoded.tobytes()
+
+
+def _quietly(function, *args, **kwargs):
+    """Run a tfds step with its progress bars off and its stdout notes sent to stderr (a build
+    prints its statistics as JSON on stdout)."""
+    tfds.disable_progress_bar()
+    with contextlib.redirect_stdout(sys.stderr):
+        return function(*args, **kwargs)
 
 
 def _id_or_unknown(value) -> int:
@@ -117,7 +128,7 @@ def build_cornell(source, data_dir) -> pathlib.Path:
     if not pathlib.Path(source).is_dir():
         raise FileNotFoundError(f"Cornell folder {source} does not exist")
     builder = CornellFolder(data_dir=str(data_dir), file_format=ARRAY_RECORD)
-    builder.download_and_prepare(download_config=tfds.download.DownloadConfig(manual_dir=str(source)))
+    _quietly(builder.download_and_prepare, download_config=tfds.download.DownloadConfig(manual_dir=str(source)))
     return pathlib.Path(builder.data_dir)
 
 
@@ -143,7 +154,12 @@ class InstructGraspConfig(tfds.core.BuilderConfig):
 
 
 def config_name(protocol: str, split_by: str, fold: int, kinds: Iterable[str], augmentations: int, representation: str) -> str:
-    return f"{protocol}-{split_by}-fold{fold}-{'_'.join(kinds)}-aug{augmentations}-{representation}"
+    """e.g. "honest-image-fold0-all-aug16-xya" (the kinds spelled out when not all of them)."""
+    from kosmos_jax.storage.samples import ALL_BUILD_KINDS
+
+    kinds = tuple(kinds)
+    label = "all" if sorted(kinds) == sorted(ALL_BUILD_KINDS) else "_".join(kinds) or "all"
+    return f"{protocol}-{split_by}-fold{fold}-{label}-aug{augmentations}-{representation}"
 
 
 def make_config(**fields) -> InstructGraspConfig:
@@ -208,10 +224,31 @@ class InstructGrasp(_LocalBuilder):
             yield f"{split}-{index:08d}", example
 
 
-def example_record(encoded: Mapping[str, np.ndarray], example) -> dict:
+class PngCache:
+    """PNG bytes of recently seen image arrays: the examples of one view or mosaic share one array.
+
+    Entries hold a reference to their array, so an id cannot be reused while it is cached.
+    """
+
+    def __init__(self, size: int = 256):
+        self.size = size
+        self._entries: dict[int, tuple[np.ndarray, bytes]] = {}
+
+    def __call__(self, image: np.ndarray) -> bytes:
+        entry = self._entries.get(id(image))
+        if entry is not None and entry[0] is image:
+            return entry[1]
+        encoded = png_bytes(image)
+        if len(self._entries) >= self.size:
+            self._entries.pop(next(iter(self._entries)))
+        self._entries[id(image)] = (image, encoded)
+        return encoded
+
+
+def example_record(encoded: Mapping[str, np.ndarray], example, png=png_bytes) -> dict:
     """A `TextExample` and its `layout.encode_example` arrays as one InstructGrasp record."""
     return {
-        "image": png_bytes(example.image),
+        "image": png(example.image),
         "tokens": np.asarray(encoded["tokens"], np.int32),
         "loss_mask": np.asarray(encoded["loss_mask"], bool),
         "image_mask": np.asarray(encoded["image_mask"], bool),
@@ -235,7 +272,7 @@ def write_instruct_grasp(records: Mapping[str, Iterable[dict]], data_dir, **conf
     """Write the records of each split under `data_dir`; returns the dataset's version folder."""
     config = make_config(**config_fields)
     builder = InstructGrasp(records=records, config=config, data_dir=str(data_dir), file_format=ARRAY_RECORD)
-    builder.download_and_prepare()
+    _quietly(builder.download_and_prepare)
     return pathlib.Path(builder.data_dir)
 
 

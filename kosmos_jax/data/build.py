@@ -1,0 +1,410 @@
+"""Build an INSTRUCT-GRASP dataset from a Cornell-format folder and print its statistics as JSON.
+
+    python -m kosmos_jax.data.build --source DIR --out DIR --protocol honest --split image --fold 0 \
+        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0]
+
+Steps: read the photos (kosmos_jax.data.cornell) -> words of each object (--annotations: the
+KOSMOS-E file or a synthetic_meta.json; else the folder's synthetic_meta.json; else colour from
+pixels) -> folds over photos or objects BEFORE augmentation (kosmos_jax.data.splits) -> views
+(kosmos_jax.storage.views: honest: --augmentations augmented views per training photo and one
+un-rotated crop per test photo; paper: --augmentations augmented copies of every photo, folded as
+the public code folds them) -> samples of every kind, mosaics drawn within a split
+(kosmos_jax.storage.samples) -> text examples (kosmos_jax.text.formatter) -> tokenizer (trained on
+the training split's text, or --tokenizer FILE, a KOSMOS-2 SentencePiece model) -> array_record
+files under OUT (kosmos_jax.storage.tfds_builders), the tokenizer and build_stats.json beside them.
+
+Checked on every example, else the build fails naming the sample: the target grasp's centre lies
+inside the image; the angle code is in [0, 255]; the target text parses back to the grasp (within
+half a pixel and one angle bin; TLBRA-patch only within its image); and, in the honest
+protocol, no test photo (object-wise: no test object) is in any training sample, mosaics included.
+The statistics list, per split, the photo ids and object ids its samples were made from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import pathlib
+import re
+import sys
+from typing import Sequence
+
+import numpy as np
+
+from kosmos_jax import geometry, grasp_text
+from kosmos_jax.annotators import kosmos_e as kosmos_e_words
+from kosmos_jax.annotators import rules as rule_words
+from kosmos_jax.annotators import synthetic as synthetic_words
+from kosmos_jax.data import cornell, splits
+from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, read_annotations
+from kosmos_jax.storage import samples as sample_stage
+from kosmos_jax.storage import tfds_builders
+from kosmos_jax.storage.views import augment_config, count_views, make_views
+from kosmos_jax.text import layout
+from kosmos_jax.text.formatter import FormatConfig, format_sample, parse_target
+from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
+
+WORD_SOURCES = ("kosmos_e", "synthetic", "rules")
+RULE_KINDS = ("non", "angle", "colour", "position", "multi-colour", "multi-position")
+
+
+class BuildCheckError(AssertionError):
+    """A built example breaks one of the must-hold properties."""
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildConfig:
+    source: str
+    out: str | None = None
+    protocol: str = "honest"
+    split: str = "image"
+    fold: int = 0
+    folds: int = 5
+    annotations: str | None = None
+    augmentations: int = 1
+    recipe: str = "random"
+    kinds: tuple[str, ...] | None = None
+    seed: int = 0
+    train_crop: str | None = None
+    test_crop: str | None = None
+    representation: str = "xya"
+    angle_code: bool = True
+    individual: bool = True
+    loss_on: str = "target"
+    target_grasp: str = "random"
+    numbers: str = "digits"
+    max_length: int = 128
+    overflow: str = "error"
+    tokenizer: str | None = None
+    text_pieces: int = 1000
+    unambiguous: bool = True
+    batch_size: int = 8
+
+    def format_config(self) -> FormatConfig:
+        return FormatConfig(self.representation, self.angle_code, self.individual, self.loss_on,
+                            self.target_grasp, 224, self.max_length, self.overflow)
+
+
+# -- inputs -------------------------------------------------------------------------------------
+
+def read_photos(source: pathlib.Path) -> list:
+    if not source.is_dir():
+        raise FileNotFoundError(f"source folder {source} does not exist")
+    photos = cornell.load_photos(source)
+    if not photos:
+        raise FileNotFoundError(f"no Cornell-format photos (pcdNNNNr.png with cpos.txt) under {source}")
+    for photo in photos:
+        if len(photo.grasps) == 0:
+            raise ValueError(f"photo {photo.id} under {source} has no grasps (its cpos.txt is empty, missing or all NaN)")
+    return photos
+
+
+def _kosmos_e(path: pathlib.Path, photos) -> dict:
+    annotations = read_annotations(path)
+    words = {}
+    for photo in photos:
+        if photo.id not in annotations:
+            raise AnnotationMismatchError(f"annotation file {path} does not match the photos: no entry for photo {photo.id}")
+        words[photo.id] = kosmos_e_words.words_from_photo(annotations.attach(photo))
+    return words
+
+
+def _synthetic(path: pathlib.Path, photos) -> dict:
+    words = synthetic_words.read_meta_words(path)
+    for photo in photos:
+        if photo.id not in words:
+            raise AnnotationMismatchError(f"annotation file {path} does not match the photos: no entry for photo {photo.id}")
+        parts = len(words[photo.id].parts)
+        if parts != len(photo.grasps):
+            raise AnnotationMismatchError(
+                f"annotation file {path} does not match the photos: photo {photo.id} has {len(photo.grasps)} grasps "
+                f"but {parts} grasp parts")
+    return words
+
+
+def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict]:
+    """(word source, {photo id: ObjectWords})."""
+    if annotations is not None:
+        path = pathlib.Path(annotations)
+        if not path.is_file():
+            raise FileNotFoundError(f"annotation file {path} does not exist")
+        try:
+            document = json.loads(path.read_text())
+        except json.JSONDecodeError as error:
+            raise AnnotationMismatchError(f"annotation file {path} is not JSON: {error}") from error
+        if isinstance(document, dict) and "photos" in document:
+            return "synthetic", _synthetic(path, photos)
+        return "kosmos_e", _kosmos_e(path, photos)
+    meta = source / "synthetic_meta.json"
+    if meta.is_file():
+        return "synthetic", _synthetic(meta, photos)
+    return "rules", {photo.id: rule_words.words_from_pixels(photo.rgb, photo.grasps) for photo in photos}
+
+
+# -- splits and views ---------------------------------------------------------------------------
+
+def photo_split(config: BuildConfig, photos) -> dict[str, list]:
+    """{split: [(photo id, copy)]} for the paper protocol, {split: [photo id]} for honest."""
+    ids = [p.id for p in photos]
+    object_ids = [p.object_id for p in photos]
+    if config.protocol == "honest" and config.split == "object" and any(o is None for o in object_ids):
+        missing = [p.id for p in photos if p.object_id is None][:5]
+        raise ValueError(f"object-wise folds need an object id for every photo (processedData/z.txt); none for {missing}")
+    train, test = splits.split(ids, config.fold, config.split, config.protocol,
+                               object_ids=object_ids if config.split == "object" else None, k=config.folds,
+                               seed=config.seed if config.protocol == "honest" else None,
+                               copies_per_photo=config.augmentations)
+    return {"train": list(train), "test": list(test)}
+
+
+def split_views(config: BuildConfig, photos, words) -> tuple[dict, dict]:
+    """{split: [View]} in a fixed order, and {split: ViewCounts} (views made, grasps dropped,
+    views left without grasps)."""
+    index = {p.id: i for i, p in enumerate(photos)}
+    by_id = {p.id: p for p in photos}
+    chosen = photo_split(config, photos)
+    views, counts = {}, {}
+    if config.protocol == "honest":
+        train_crop = config.train_crop or "gt_centroid"
+        test_crop = config.test_crop or "image_centre"
+        for split, crop_only, policy in (("train", False, train_crop), ("test", True, test_crop)):
+            members = [by_id[i] for i in chosen[split]]
+            made, dropped = make_views(members, words, augment_config(config.augmentations, config.recipe, policy),
+                                       config.seed + (0 if split == "train" else 1), index, crop_only, config.batch_size)
+            views[split] = [made[key] for key in sorted(made)]
+            counts[split] = count_views(sorted(dropped), made, dropped)
+        return views, counts
+    policy = config.train_crop or "gt_centroid"
+    if config.test_crop not in (None, policy):
+        raise ValueError("the paper protocol folds augmented copies, so train and test share one crop policy")
+    made, dropped = make_views(photos, words, augment_config(config.augmentations, config.recipe, policy),
+                               config.seed, index, False, config.batch_size)
+    for split in ("train", "test"):
+        keys = [tuple(key) for key in chosen[split]]
+        views[split] = [made[key] for key in keys if key in made]
+        counts[split] = count_views(keys, made, dropped)
+    return views, counts
+
+
+# -- checks -------------------------------------------------------------------------------------
+
+_ANGLE_CODE = re.compile(r"a_(-?\d+)\b")
+
+
+def check_example(example, config: FormatConfig) -> None:
+    grasp, size = example.grasp, config.image_size
+    where = f"sample of photos {example.photo_ids} ({example.kind}, {example.part}): "
+    if not (0 <= grasp[0] < size and 0 <= grasp[1] < size):
+        raise BuildCheckError(where + f"target grasp centre ({grasp[0]:.2f}, {grasp[1]:.2f}) outside the {size} image")
+    if config.angle_code:
+        for code in _ANGLE_CODE.findall(example.target_text):
+            if not 0 <= int(code) <= 255:
+                raise BuildCheckError(where + f"angle code {code} outside [0, 255]")
+    parsed = parse_target(example.target_text, example.part, config)
+    if not parsed.ok:
+        raise BuildCheckError(where + f"target {example.target_text!r} does not parse: {parsed.error}")
+    stated = example.grasp_mask
+    if stated[4]:
+        # the code clips at 255, so an angle in the last half bin below pi/2 is one bin off
+        tolerance = math.pi / geometry.ANGLE_BINS if config.angle_code else 0.005
+        if geometry.angle_difference(parsed.grasp[4], grasp[4]) > tolerance + 1e-9:
+            raise BuildCheckError(where + f"target {example.target_text!r} gives angle {parsed.grasp[4]:.4f}, not {grasp[4]:.4f}")
+    if stated[0] and config.representation != "tlbra_patch":
+        # the formatter prints centres clipped to [0, size - 1]
+        expected = np.clip(grasp[:2], 0, size - 1)
+        if np.any(np.abs(parsed.grasp[:2] - expected) > 0.5 + 1e-9):
+            raise BuildCheckError(where + f"target {example.target_text!r} gives centre {parsed.grasp[:2]}, not {grasp[:2]}")
+
+
+def check_separation(ids: dict, protocol: str, split: str) -> dict:
+    """Overlaps of the splits' photo and object ids; an error in the honest protocol."""
+    photos = sorted(set(ids["train"]["photos"]) & set(ids["test"]["photos"]))
+    objects = sorted(set(ids["train"]["objects"]) & set(ids["test"]["objects"]))
+    if protocol == "honest":
+        if photos:
+            raise BuildCheckError(f"test photos {photos[:5]} reach training samples")
+        if split == "object" and objects:
+            raise BuildCheckError(f"test objects {objects[:5]} reach training samples")
+    return {"shared_photos": len(photos), "shared_objects": len(objects)}
+
+
+# -- the build ----------------------------------------------------------------------------------
+
+def _examples(config: BuildConfig, views, single, multi, split, mosaics=None):
+    """(view index, sample, example) of a split, in a fixed order."""
+    format_config = config.format_config()
+    tag = sample_stage.SPLIT_TAGS[split]
+    samples = sample_stage.split_samples(views, single, multi, config.seed, split, mosaics, config.unambiguous)
+    for number, (_, sample) in enumerate(samples):
+        rng = np.random.default_rng([config.seed, 99, tag, number])  # the same in both passes
+        for example in format_sample(sample, format_config, rng):
+            yield sample, example
+
+
+def _token_stats(lengths: list[int]) -> dict:
+    if not lengths:
+        return {"min": 0, "mean": 0.0, "max": 0}
+    values = np.asarray(lengths)
+    return {"min": int(values.min()), "mean": round(float(values.mean()), 2), "p95": int(np.percentile(values, 95)),
+            "max": int(values.max())}
+
+
+def build(config: BuildConfig, write: bool = True) -> dict:
+    source = pathlib.Path(config.source)
+    if config.protocol not in ("honest", "paper"):
+        raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
+    format_config = config.format_config()
+    photos = read_photos(source)
+    word_source, words = object_words(source, config.annotations, photos)
+    kinds = config.kinds if config.kinds is not None else (("all",) if word_source != "rules" else RULE_KINDS)
+    single, multi = sample_stage.parse_kinds(kinds)
+    views, view_counts = split_views(config, photos, words)
+
+    # pass 1: samples, checks, statistics, the tokenizer's corpus
+    stats: dict = {"splits": {}}
+    ids = {}
+    corpus: list[str] = []
+    for split in ("train", "test"):
+        mosaics = sample_stage.MosaicCounts()
+        samples_by_kind: dict[str, int] = {}
+        examples_by_kind: dict[str, int] = {}
+        photo_ids, object_ids = set(), set()
+        last = None
+        for sample, example in _examples(config, views[split], single, multi, split, mosaics):
+            if sample is not last:
+                label = sample_stage.kind_label(sample)
+                samples_by_kind[label] = samples_by_kind.get(label, 0) + 1
+                photo_ids.update(sample.photo_ids)
+                object_ids.update(o for o in sample.object_ids if o is not None)
+                last = sample
+            label = sample_stage.kind_label(sample)
+            examples_by_kind[label] = examples_by_kind.get(label, 0) + 1
+            check_example(example, format_config)
+            if split == "train":
+                corpus.append(example.text)
+        ids[split] = {"photos": photo_ids, "objects": object_ids}
+        counts = view_counts[split]
+        stats["splits"][split] = {
+            "views": counts.views,
+            "views_used": len(views[split]),
+            "samples": sum(samples_by_kind.values()),
+            "samples_by_kind": dict(sorted(samples_by_kind.items())),
+            "examples": sum(examples_by_kind.values()),
+            "examples_by_kind": dict(sorted(examples_by_kind.items())),
+            "grasps_dropped_by_crop": counts.grasps_dropped_by_crop,
+            "views_without_grasps": counts.views_without_grasps,
+            "mosaics": mosaics.built,
+            "mosaics_redrawn": mosaics.redraws,
+            "mosaics_skipped": mosaics.skipped,
+            "mosaic_skip_reasons": mosaics.skip_reasons,
+            "photo_ids": sorted(photo_ids),
+            "object_ids": sorted(int(o) for o in object_ids),
+        }
+    stats["separation"] = check_separation(ids, config.protocol, config.split)
+    stats["config"] = {**dataclasses.asdict(config), "word_source": word_source, "single_kinds": list(single),
+                       "multi_kinds": list(multi), "photos": len(photos)}
+    if not corpus:
+        raise ValueError("the training split has no examples; nothing to train a tokenizer on or to write")
+
+    if config.tokenizer:
+        tokenizer = load_tokenizer(config.tokenizer, scheme="fairseq", numbers=config.numbers)
+    else:
+        tokenizer = train_tokenizer(corpus, numbers=config.numbers, text_pieces=config.text_pieces,
+                                    representations=(config.representation,))
+    stats["tokenizer"] = {"scheme": tokenizer.scheme, "numbers": tokenizer.numbers, "vocab_size": tokenizer.vocab_size}
+
+    # pass 2: the same examples, tokenized (and written)
+    lengths = {"train": [], "test": []}
+    truncated = {"train": 0, "test": 0}
+
+    png = tfds_builders.PngCache()
+
+    def records(split):
+        for sample, example in _examples(config, views[split], single, multi, split):
+            encoded = layout.encode_example(example, tokenizer, format_config)
+            lengths[split].append(int(encoded["length"]))
+            truncated[split] += int(encoded["truncated"])
+            yield tfds_builders.example_record(encoded, example, png)
+
+    if write:
+        if config.out is None:
+            raise ValueError("--out is required to write the dataset")
+        out = pathlib.Path(config.out)
+        dataset_dir = tfds_builders.write_instruct_grasp(
+            {split: records(split) for split in ("train", "test")}, out,
+            protocol=config.protocol, split_by=config.split, fold=config.fold, folds=config.folds,
+            kinds=tuple(k for k in single) + tuple(sample_stage.MULTI_PREFIX + k for k in multi),
+            augmentations=config.augmentations, seed=config.seed, representation=config.representation,
+            angle_code=config.angle_code, individual=config.individual, loss_on=config.loss_on,
+            numbers=config.numbers, max_length=config.max_length)
+        tokenizer_path = tokenizer.save(dataset_dir / "tokenizer.model")
+        stats["dataset_dir"] = str(dataset_dir)
+        stats["tokenizer"]["path"] = str(tokenizer_path)
+    else:
+        for split in ("train", "test"):
+            for _ in records(split):
+                pass
+    for split in ("train", "test"):
+        stats["splits"][split]["token_length"] = _token_stats(lengths[split])
+        stats["splits"][split]["truncated"] = truncated[split]
+    if write:
+        (pathlib.Path(stats["dataset_dir"]) / "build_stats.json").write_text(json.dumps(stats, indent=1))
+    return stats
+
+
+# -- command line -------------------------------------------------------------------------------
+
+def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.data.build", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--source", required=True, help="Cornell-format folder")
+    parser.add_argument("--out", required=True, help="TFDS data_dir to write into")
+    parser.add_argument("--protocol", choices=("honest", "paper"), default="honest")
+    parser.add_argument("--split", choices=("image", "object"), default="image")
+    parser.add_argument("--fold", type=int, default=0)
+    parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--annotations", help="KOSMOS-E instructions-original.json or a synthetic_meta.json")
+    parser.add_argument("--augmentations", type=int, default=1, help="augmented views per (training) photo: the build size")
+    parser.add_argument("--recipe", choices=("random", "paper"), default="random",
+                        help="random: N rotations; paper: N/4 whole-degree rotations x 4 whole-pixel shifts")
+    parser.add_argument("--kinds", nargs="+", help="non, angle, part, name, colour, shape, purpose, strategy, position, "
+                        "multi-<kind>, or single / multi / all (default: all the words allow)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--train-crop", choices=("gt_centroid", "image_centre", "random"))
+    parser.add_argument("--test-crop", choices=("gt_centroid", "image_centre", "random"))
+    parser.add_argument("--representation", choices=grasp_text.REPRESENTATIONS, default="xya")
+    parser.add_argument("--no-angle-code", action="store_true", help="angles in radians instead of the 256-bin code")
+    parser.add_argument("--joint", action="store_true", help="one example with the whole grasp (default: centre and angle apart)")
+    parser.add_argument("--loss-on", choices=("target", "instruction"), default="target")
+    parser.add_argument("--target-grasp", choices=("first", "each", "random"), default="random")
+    parser.add_argument("--numbers", choices=("digits", "values"), default="digits")
+    parser.add_argument("--max-length", type=int, default=128)
+    parser.add_argument("--overflow", choices=("error", "truncate"), default="error")
+    parser.add_argument("--tokenizer", help="an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
+    parser.add_argument("--text-pieces", type=int, default=1000, help="pieces of a trained tokenizer besides the symbols")
+    parser.add_argument("--ambiguous-mosaics", action="store_true", help="draw distractors at random, as the paper did")
+    args = parser.parse_args(argv)
+    return BuildConfig(
+        source=args.source, out=args.out, protocol=args.protocol, split=args.split, fold=args.fold, folds=args.folds,
+        annotations=args.annotations, augmentations=args.augmentations, recipe=args.recipe,
+        kinds=tuple(args.kinds) if args.kinds else None, seed=args.seed, train_crop=args.train_crop,
+        test_crop=args.test_crop, representation=args.representation, angle_code=not args.no_angle_code,
+        individual=not args.joint, loss_on=args.loss_on, target_grasp=args.target_grasp, numbers=args.numbers,
+        max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer, text_pieces=args.text_pieces,
+        unambiguous=not args.ambiguous_mosaics)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    config = parse_args(argv)
+    try:
+        stats = build(config)
+    except (ValueError, FileNotFoundError, KeyError) as error:
+        print(f"build failed: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps(stats, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
