@@ -75,7 +75,7 @@ class BuildConfig:
     loss_on: str = "target"
     target_grasp: str = "random"
     numbers: str = "digits"
-    max_length: int = 128
+    max_length: int = 192  # KOSMOS-E's strategy sentences run to ~100 text tokens
     overflow: str = "error"
     tokenizer: str | None = None
     text_pieces: int = 1000
@@ -251,7 +251,10 @@ def _token_stats(lengths: list[int]) -> dict:
             "max": int(values.max())}
 
 
-def build(config: BuildConfig, write: bool = True) -> dict:
+def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dict:
+    """Build (or, with write=False, only plan, check and count) one dataset; returns the statistics.
+
+    tokenize=False stops after the checks and the statistics of pass 1 (no token lengths)."""
     source = pathlib.Path(config.source)
     if config.protocol not in ("honest", "paper"):
         raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
@@ -308,6 +311,10 @@ def build(config: BuildConfig, write: bool = True) -> dict:
     if not corpus:
         raise ValueError("the training split has no examples; nothing to train a tokenizer on or to write")
 
+    if not tokenize:
+        if write:
+            raise ValueError("writing a dataset needs its tokens (tokenize=True)")
+        return stats
     if config.tokenizer:
         tokenizer = load_tokenizer(config.tokenizer, scheme="fairseq", numbers=config.numbers)
     else:
@@ -379,7 +386,7 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
     parser.add_argument("--loss-on", choices=("target", "instruction"), default="target")
     parser.add_argument("--target-grasp", choices=("first", "each", "random"), default="random")
     parser.add_argument("--numbers", choices=("digits", "values"), default="digits")
-    parser.add_argument("--max-length", type=int, default=128)
+    parser.add_argument("--max-length", type=int, default=192, help="tokens per example, image slots included")
     parser.add_argument("--overflow", choices=("error", "truncate"), default="error")
     parser.add_argument("--tokenizer", help="an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
     parser.add_argument("--text-pieces", type=int, default=1000, help="pieces of a trained tokenizer besides the symbols")

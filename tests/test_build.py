@@ -1,0 +1,187 @@
+"""The build command on a tiny synthetic Cornell-format source: folds, must-hold checks, errors, CLI."""
+
+import json
+import math
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+from kosmos_jax import geometry
+from kosmos_jax.data import splits, synthetic
+from kosmos_jax.data.build import BuildCheckError, BuildConfig, build, check_example, check_separation, main
+from kosmos_jax.storage import pipeline
+from kosmos_jax.storage.tfds_builders import open_splits
+from kosmos_jax.text.formatter import FormatConfig, TextExample, parse_target
+from kosmos_jax.data import cornell
+
+PHOTOS = 15  # 5 objects: enough for 5 object-wise folds
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synthetic")
+    shutil.rmtree(root)
+    synthetic.write_dataset(root, photos=PHOTOS, seed=0)
+    return root
+
+
+@pytest.fixture(scope="module")
+def photos(source):
+    return cornell.load_photos(source)
+
+
+def _expected_test(photos, split, fold):
+    ids = [p.id for p in photos]
+    objects = [p.object_id for p in photos]
+    _, test = splits.split(ids, fold, split, "honest", object_ids=objects if split == "object" else None, seed=0)
+    test_objects = {p.object_id for p in photos if p.id in set(test)}
+    return set(test), test_objects
+
+
+@pytest.mark.parametrize("split", ["image", "object"])
+@pytest.mark.parametrize("fold", range(5))
+def test_honest_folds_never_leak(source, photos, split, fold):
+    stats = build(BuildConfig(source=str(source), split=split, fold=fold), write=False, tokenize=False)
+    test_photos, test_objects = _expected_test(photos, split, fold)
+    train, test = stats["splits"]["train"], stats["splits"]["test"]
+    assert not set(train["photo_ids"]) & test_photos
+    # a test photo is missing only when its one view kept no grasp (counted)
+    assert set(test["photo_ids"]) <= test_photos
+    assert len(test_photos) - len(test["photo_ids"]) == test["views_without_grasps"]
+    if split == "object":
+        assert not set(train["object_ids"]) & test_objects
+    # every kind was built for training, mosaics included, and mosaics brought in 4 photos each
+    assert train["samples_by_kind"]["multi-name"] == train["views_used"] > 0
+    assert {"non", "angle", "part", "name", "colour", "shape", "purpose", "strategy", "position"} <= set(train["samples_by_kind"])
+    assert stats["separation"] == {"shared_photos": 0, "shared_objects": 0} or split == "image"
+
+
+def _records(split_source):
+    return [split_source[i] for i in range(len(split_source))]
+
+
+@pytest.fixture(scope="module")
+def written(source, tmp_path_factory):
+    out = tmp_path_factory.mktemp("built")
+    stats = build(BuildConfig(source=str(source), out=str(out), split="object", fold=1, augmentations=2))
+    return stats, open_splits(stats["dataset_dir"])
+
+
+def test_written_records_hold_the_properties(written, photos):
+    stats, splits_on_disk = written
+    config = FormatConfig()  # the build's text defaults
+    stored_ids = {}
+    for name, source in splits_on_disk.items():
+        records = _records(source)
+        assert len(records) == stats["splits"][name]["examples"]
+        photo_ids, object_ids = set(), set()
+        for record in records:
+            grasp = record["grasp"]
+            assert 0 <= grasp[0] < 224 and 0 <= grasp[1] < 224
+            text = bytes(record["target_text"]).decode()
+            for code in re.findall(r"a_(-?\d+)", text):
+                assert 0 <= int(code) <= 255
+            parsed = parse_target(text, bytes(record["part"]).decode(), config)
+            assert parsed.ok, text
+            if "a_" in text:
+                assert geometry.angle_difference(parsed.grasp[4], grasp[4]) <= math.pi / 256 + 1e-6
+            if "center point" in text:
+                assert np.all(np.abs(parsed.grasp[:2] - grasp[:2]) <= 0.5 + 1e-4)
+            tokens, loss = record["tokens"], record["loss_mask"]
+            assert loss.sum() >= 2 and tokens[int(record["length"]) - 1] == 2  # target and </s>
+            photo_ids.update(bytes(p).decode() for p in record["photo_ids"])
+            object_ids.update(int(o) for o in record["object_ids"])
+            assert record["image"].shape == (224, 224, 3)
+        stored_ids[name] = (photo_ids, object_ids)
+        assert sorted(photo_ids) == stats["splits"][name]["photo_ids"]
+    assert not stored_ids["train"][0] & stored_ids["test"][0]
+    assert not stored_ids["train"][1] & stored_ids["test"][1]
+    # the build size: two augmented views per training photo, one view per test photo
+    train_photos = len(stats["splits"]["train"]["photo_ids"])
+    assert stats["splits"]["train"]["views"] == 2 * train_photos
+    assert stats["splits"]["test"]["views"] == len(stats["splits"]["test"]["photo_ids"])
+
+
+def test_written_dataset_feeds_the_pipeline(written):
+    stats, splits_on_disk = written
+    (batch,) = [b for _, b in zip(range(1), pipeline.make_dataset(splits_on_disk["train"], batch_size=4, seed=0))]
+    assert batch["tokens"].shape == (4, 192) and batch["image"].shape == (4, 224, 224, 3)
+    assert stats["splits"]["train"]["token_length"]["max"] <= 192
+    assert stats["tokenizer"]["vocab_size"] > 67
+
+
+def test_checks_catch_violations():
+    config = FormatConfig(individual=False)
+    grasp = np.array([230.0, 10.0, 20.0, 10.0, 0.1])
+    example = TextExample("name", "single", "grasp", "Grasp it.", "", "Grasp center point coordinates: x_223,y_10 Grasp rotation angle in radians: a_136",
+                          grasp, np.ones(5, bool), grasp[None], np.zeros((224, 224, 3), np.uint8), ("pcd0100",), (1,))
+    with pytest.raises(BuildCheckError, match=r"pcd0100.*outside the 224 image"):
+        check_example(example, config)
+    inside = TextExample(**{**example.__dict__, "grasp": np.array([20.0, 10.0, 20.0, 10.0, 0.1])})
+    with pytest.raises(BuildCheckError, match="gives centre"):
+        check_example(inside, config)
+    bad_code = TextExample(**{**inside.__dict__, "value": "Grasp center point coordinates: x_20,y_10 Grasp rotation angle in radians: a_300"})
+    with pytest.raises(BuildCheckError, match="angle code 300"):
+        check_example(bad_code, config)
+    ids = {"train": {"photos": {"a", "b"}, "objects": {1}}, "test": {"photos": {"b"}, "objects": {1}}}
+    with pytest.raises(BuildCheckError, match=r"test photos \['b'\]"):
+        check_separation(ids, "honest", "image")
+    assert check_separation(ids, "paper", "image") == {"shared_photos": 1, "shared_objects": 1}
+
+
+def test_paper_protocol_leaks_and_says_so(source):
+    stats = build(BuildConfig(source=str(source), protocol="paper", split="image", fold=0, augmentations=4, recipe="paper",
+                              kinds=("non", "multi-colour")), write=False, tokenize=False)
+    assert stats["separation"]["shared_photos"] > 0  # copies of a test photo train the model
+    total_views = sum(stats["splits"][s]["views"] for s in ("train", "test"))
+    assert total_views == 4 * PHOTOS
+
+
+def test_errors_name_the_input(source, tmp_path):
+    with pytest.raises(ValueError, match="unknown instruction kind 'smell'"):
+        build(BuildConfig(source=str(source), kinds=("non", "smell")), write=False, tokenize=False)
+    with pytest.raises(ValueError, match="multi-angle|'angle'"):
+        build(BuildConfig(source=str(source), kinds=("multi-angle",)), write=False, tokenize=False)
+    broken = tmp_path / "broken"
+    shutil.copytree(source, broken)
+    (next(broken.rglob("pcd0103cpos.txt"))).write_text("")
+    with pytest.raises(ValueError, match="pcd0103.*no grasps"):
+        build(BuildConfig(source=str(broken)), write=False, tokenize=False)
+    meta = json.loads((source / "synthetic_meta.json").read_text())
+    del meta["photos"]["pcd0107"]
+    partial = tmp_path / "partial_meta.json"
+    partial.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="does not match the photos: no entry for photo pcd0107"):
+        build(BuildConfig(source=str(source), annotations=str(partial)), write=False, tokenize=False)
+    meta = json.loads((source / "synthetic_meta.json").read_text())
+    meta["photos"]["pcd0101"]["grasp_parts"] = meta["photos"]["pcd0101"]["grasp_parts"][:-1]
+    short = tmp_path / "short_meta.json"
+    short.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="pcd0101 has .* grasps but .* grasp parts"):
+        build(BuildConfig(source=str(source), annotations=str(short)), write=False, tokenize=False)
+    not_kosmos = tmp_path / "kosmos.json"
+    not_kosmos.write_text(json.dumps({"0": {}}))
+    with pytest.raises(ValueError, match="kosmos.json: keys must be"):
+        build(BuildConfig(source=str(source), annotations=str(not_kosmos)), write=False, tokenize=False)
+
+
+def test_cli_prints_statistics(source, tmp_path, capsys):
+    code = main(["--source", str(source), "--out", str(tmp_path / "out"), "--protocol", "honest", "--split", "image",
+                 "--fold", "3", "--augmentations", "1", "--kinds", "non", "angle", "multi-position", "--seed", "4"])
+    assert code == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert set(stats["splits"]["train"]["samples_by_kind"]) == {"non", "angle", "multi-position"}
+    assert stats["config"]["seed"] == 4 and stats["config"]["fold"] == 3
+    assert (tmp_path / "out").is_dir() and "fold3" in stats["dataset_dir"]
+    code = main(["--source", str(tmp_path / "missing"), "--out", str(tmp_path / "o2")])
+    assert code == 2 and "missing does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_real_cornell_with_kosmos_e_annotations(cornell_root, kosmos_e_annotations, tmp_path):
+    stats = build(BuildConfig(source=str(cornell_root), annotations=str(kosmos_e_annotations), split="object", fold=0),
+                  write=False, tokenize=False)
+    assert stats["config"]["word_source"] == "kosmos_e"
+    assert stats["separation"]["shared_objects"] == 0
