@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: setup
-	$(PY) -m kosmos_jax.demo
+	$(PY) -m kosmos_jax.demo --config=configs/demo.py
 
 test: setup
 	$(PY) -m pytest -n $(WORKERS) -q

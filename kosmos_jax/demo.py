@@ -1,21 +1,24 @@
 """`make demo`: the two no-learning baselines under both protocols and both IoU backends.
 
-    python -m kosmos_jax.demo [--out demo_out] [--photos 60] [--seed 0] [--cornell PATH]
+    python -m kosmos_jax.demo --config=configs/demo.py [--config.photos=60] [--config.cornell=PATH]
 
 Writes a synthetic Cornell-format set (the project's own data), reads it back with the Cornell
 reader, and scores the image-centre predictor and the ground-truth-mean oracle with 5-fold
 cross-validation, image-wise and object-wise, under the `honest` and `paper` protocols and the
 `exact` and `reference` IoU backends; the same on the real Cornell files when they are present
-(../shared/data/cornell, or --cornell). Prints a table and writes it as JSON to OUT/baselines.json.
+(../shared/data/cornell, or config.cornell). Prints a table and writes it as JSON to
+OUT/baselines.json.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
 import time
+
+from absl import app
+from ml_collections import config_flags
 
 from kosmos_jax.data import cornell, synthetic
 from kosmos_jax.evaluation import baselines, scoring, views
@@ -23,6 +26,7 @@ from kosmos_jax.metrics import BACKENDS
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_CORNELL = REPO.parent / "shared" / "data" / "cornell"
+CONFIG = config_flags.DEFINE_config_file("config", str(REPO / "configs" / "demo.py"), "an ml-collections config file")
 
 
 def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
@@ -34,17 +38,18 @@ def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
     return root
 
 
-def evaluate_source(name: str, root: pathlib.Path, seed: int) -> list[dict]:
+def evaluate_source(name: str, root: pathlib.Path, seed: int, k: int = 5) -> list[dict]:
     photos = cornell.load_photos(root, progress=True)
     object_of = {p.id: p.object_id for p in photos}
     rows = []
     for protocol in views.PROTOCOLS:
         test_views = views.make_views(photos, protocol, seed=seed, progress=True)
         for scheme in ("image", "object"):
-            folds = scoring.view_folds(test_views, scheme, protocol, object_of, seed=seed)
+            folds = scoring.view_folds(test_views, scheme, protocol, object_of, k=k, seed=seed)
             for backend in BACKENDS:
                 for predictor, predict in baselines.BASELINES.items():
-                    result = scoring.score(predict(test_views.grasps, test_views.mask), test_views, folds, protocol, backend)
+                    prediction = predict(test_views.grasps, test_views.mask)
+                    result = scoring.score(prediction, test_views, folds, protocol, backend, k)
                     rows.append(
                         dict(data=name, photos=len(photos), protocol=protocol, split=scheme, backend=backend,
                              predictor=predictor, mean=round(result.mean, 2), std=round(result.std, 2),
@@ -67,27 +72,31 @@ def print_table(rows: list[dict]) -> None:
           "w = widest opening, h = mean jaw (KOSMOS-E's code)")
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=pathlib.Path, default=REPO / "demo_out")
-    parser.add_argument("--photos", type=int, default=60, help="synthetic photos to make (default 60)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--cornell", type=pathlib.Path, default=DEFAULT_CORNELL,
-                        help="a Cornell-format folder to evaluate as well, when it exists")
-    args = parser.parse_args(argv)
+def run(config) -> list[dict]:
+    """Make or reuse the synthetic set, evaluate every source, print and save the table."""
     start = time.perf_counter()
-    args.out.mkdir(parents=True, exist_ok=True)
-    sources = [("synthetic", synthetic_source(args.out, args.photos, args.seed))]
-    if args.cornell.exists():
-        sources.append(("cornell", args.cornell))
+    out = REPO / config.out
+    out.mkdir(parents=True, exist_ok=True)
+    sources = [("synthetic", synthetic_source(out, config.photos, config.seed))]
+    cornell_root = pathlib.Path(config.cornell) if config.cornell else DEFAULT_CORNELL
+    if cornell_root.exists():
+        sources.append(("cornell", cornell_root))
+    elif config.cornell:
+        raise FileNotFoundError(f"config.cornell={config.cornell!r} does not exist")
     else:
-        print(f"no Cornell files at {args.cornell}: synthetic data only", file=sys.stderr)
-    rows = [row for name, root in sources for row in evaluate_source(name, root, args.seed)]
+        print(f"no Cornell files at {cornell_root}: synthetic data only", file=sys.stderr)
+    rows = [row for name, root in sources for row in evaluate_source(name, root, config.seed, config.folds)]
     print_table(rows)
-    (args.out / "baselines.json").write_text(json.dumps(rows, indent=1))
-    print(f"\nwrote {args.out / 'baselines.json'} in {time.perf_counter() - start:.0f} s")
-    return 0
+    (out / "baselines.json").write_text(json.dumps(rows, indent=1))
+    print(f"\nwrote {out / 'baselines.json'} in {time.perf_counter() - start:.0f} s")
+    return rows
+
+
+def main(argv) -> None:
+    if len(argv) > 1:
+        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+    run(CONFIG.value)
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    app.run(main)

@@ -1,7 +1,9 @@
 """Test views, baselines and fold scoring of the two protocols, and the demo end to end."""
 
+import importlib.util
 import json
 import math
+import pathlib
 
 import numpy as np
 import pytest
@@ -9,6 +11,10 @@ import pytest
 from kosmos_jax import demo
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.evaluation import baselines, scoring, views
+
+_spec = importlib.util.spec_from_file_location("demo_settings", pathlib.Path(__file__).parents[1] / "configs" / "demo.py")
+demo_settings = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(demo_settings)
 
 
 def make_photo(index, grasps, rng):
@@ -100,8 +106,16 @@ def test_honest_folds_keep_photos_and_objects_together():
         scoring.view_folds(v, "object", "honest")
 
 
-def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys):
-    assert demo.main(["--out", str(tmp_path), "--photos", "24", "--cornell", str(tmp_path / "absent")]) == 0
+def demo_config(tmp_path, **overrides):
+    config = demo_settings.get_config("tiny")
+    config.out = str(tmp_path)  # an absolute path wins over the repository root
+    config.update(overrides)
+    return config
+
+
+def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(demo, "DEFAULT_CORNELL", tmp_path / "absent")
+    demo.run(demo_config(tmp_path))
     rows = json.loads((tmp_path / "baselines.json").read_text())
     assert {r["data"] for r in rows} == {"synthetic"}
     combos = {(r["protocol"], r["split"], r["backend"], r["predictor"]) for r in rows}
@@ -110,3 +124,8 @@ def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys):
     centre = [r for r in rows if r["predictor"] == "image_centre" and r["protocol"] == "honest"]
     assert min(r["mean"] for r in oracle) > max(r["mean"] for r in centre)
     assert "image-wise" in capsys.readouterr().out
+
+
+def test_demo_refuses_a_missing_cornell_folder(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nowhere"):
+        demo.run(demo_config(tmp_path, cornell=str(tmp_path / "nowhere")))
