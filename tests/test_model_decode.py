@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.models import decode, weights
+from kosmos_jax.models.kosmos2 import forward
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 NEW = 4
@@ -33,7 +34,7 @@ def test_cached_and_uncached_decoding_agree(setup):
     full_ids = jnp.concatenate([ids, cached[:, :-1]], axis=1)
     full_mask = jnp.concatenate([mask, jnp.ones_like(cached[:, :-1], bool)], axis=1)
     full_image = jnp.concatenate([image_mask, jnp.zeros_like(cached[:, :-1], bool)], axis=1)
-    logits = model(full_ids, full_mask, full_image, image_embeds=embeds)
+    logits = forward(model, full_ids, full_mask, full_image, image_embeds=embeds)
     np.testing.assert_allclose(np.asarray(logits[:, ids.shape[1] - 1:]), np.asarray(cached_logits), atol=1e-5)
 
 

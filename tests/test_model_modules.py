@@ -8,20 +8,27 @@ import numpy as np
 import pytest
 from flax import nnx
 
+import pathlib
+
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models import sharding
-from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, build, param_count
+from kosmos_jax.models import sharding, weights
+from kosmos_jax.models.decoder import TextBlock
+from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, build, forward, param_count
 from kosmos_jax.models.summary import summarize
 
+FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 
-def tiny_inputs(cfg, batch=2, length=9, seed=0):
-    rng = np.random.default_rng(seed)
-    ids = rng.integers(4, cfg.text.vocab_size, (batch, length))
-    image_mask = np.zeros((batch, length), bool)
-    image_mask[:, 1:1 + cfg.latent_query_num] = True
-    size = cfg.vision.image_size
-    pixels = rng.normal(size=(batch, size, size, 3)).astype(np.float32)
-    return jnp.asarray(ids), jnp.ones((batch, length), bool), jnp.asarray(image_mask), jnp.asarray(pixels)
+
+def tiny_inputs(batch=None):
+    """The parity fixture's inputs (same shapes in every test, so compiled forwards are reused)."""
+    ref = np.load(FIXTURE / "reference.npz")
+    ids, mask = jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool)
+    image_mask = jnp.asarray(ref["image_embeds_position_mask"], bool)
+    pixels = jnp.asarray(ref["pixel_values"].transpose(0, 2, 3, 1))
+    if batch is not None:  # repeat rows to reach `batch`
+        take = np.arange(batch) % ids.shape[0]
+        ids, mask, image_mask, pixels = ids[take], mask[take], image_mask[take], pixels[take]
+    return ids, mask, image_mask, pixels
 
 
 def test_kosmos2_parameter_count_is_exact_from_shapes_only():
@@ -78,11 +85,10 @@ def test_rules_map_to_mesh_axes_and_never_reuse_one():
 def test_sharded_forward_on_a_fake_mesh_matches_unsharded():
     if len(jax.devices()) < 8:
         pytest.skip("needs 8 (fake) devices")
-    cfg = config_lib.get_config("tiny")
-    model = build(cfg)
+    model = weights.load_pretrained(FIXTURE)
     model.eval()
-    ids, mask, image_mask, pixels = tiny_inputs(cfg, batch=4)
-    expected = model(ids, mask, image_mask, pixels=pixels)
+    ids, mask, image_mask, pixels = tiny_inputs(batch=4)
+    expected = forward(model, ids, mask, image_mask, pixels=pixels)
     mesh = jax.make_mesh((2, 2, 2), sharding.MESH_AXES, axis_types=(jax.sharding.AxisType.Auto,) * 3)
     graphdef, state = nnx.split(model)
     shardings = sharding.param_shardings(state, mesh)
@@ -93,57 +99,55 @@ def test_sharded_forward_on_a_fake_mesh_matches_unsharded():
     assert fc1.get_value().sharding.spec == jax.sharding.PartitionSpec("fsdp", None)
 
     @jax.jit
-    def forward(state, ids, mask, image_mask, pixels):
+    def sharded_forward(state, ids, mask, image_mask, pixels):
         return nnx.merge(graphdef, state)(ids, mask, image_mask, pixels=pixels)
 
     with jax.set_mesh(mesh):
-        got = forward(state, ids, mask, image_mask, pixels)
+        got = sharded_forward(state, ids, mask, image_mask, pixels)
     np.testing.assert_allclose(np.asarray(got), np.asarray(expected), atol=2e-5)
 
 
 def test_magneto_gain_scales_exactly_the_four_decoder_projections():
-    plain = build(config_lib.get_config("tiny", magneto_init=False), seed=3)
-    magneto = build(config_lib.get_config("tiny", magneto_init=True), seed=3)
-    gain = math.sqrt(math.log(2 * 2))
-    layer_p, layer_m = plain.text_model.model.layers[1], magneto.text_model.model.layers[1]
-    for name in ("fc1", "fc2"):
-        np.testing.assert_allclose(getattr(layer_m.ffn, name).kernel[...], getattr(layer_p.ffn, name).kernel[...] * gain, rtol=1e-6)
-    for name in ("out_proj", "v_proj"):
-        np.testing.assert_allclose(getattr(layer_m.self_attn, name).kernel[...], getattr(layer_p.self_attn, name).kernel[...] * gain, rtol=1e-6)
-    for name in ("q_proj", "k_proj"):
-        np.testing.assert_array_equal(getattr(layer_m.self_attn, name).kernel[...], getattr(layer_p.self_attn, name).kernel[...])
-    # the connector's attention is not part of the decoder stack
-    np.testing.assert_array_equal(magneto.image_to_text_projection.x_attn.v_proj.kernel[...],
-                                  plain.image_to_text_projection.x_attn.v_proj.kernel[...])
-
-
-def test_dropout_only_in_training_mode():
     cfg = config_lib.get_config("tiny")
-    model = build(cfg)
-    ids, mask, image_mask, pixels = tiny_inputs(cfg)
+    assert cfg.magneto_gain == pytest.approx(math.sqrt(math.log(2 * cfg.text.layers)))
+    assert cfg.replace(magneto_init=False).magneto_gain == 1.0
+    gain = 1.7
+    plain = TextBlock(cfg.text, jnp.float32, nnx.Rngs(3), magneto_gain=1.0)
+    scaled = TextBlock(cfg.text, jnp.float32, nnx.Rngs(3), magneto_gain=gain)
+    for name in ("fc1", "fc2"):
+        np.testing.assert_allclose(getattr(scaled.ffn, name).kernel[...], getattr(plain.ffn, name).kernel[...] * gain, rtol=1e-6)
+    for name in ("out_proj", "v_proj"):
+        np.testing.assert_allclose(getattr(scaled.self_attn, name).kernel[...], getattr(plain.self_attn, name).kernel[...] * gain, rtol=1e-6)
+    for name in ("q_proj", "k_proj"):
+        np.testing.assert_array_equal(getattr(scaled.self_attn, name).kernel[...], getattr(plain.self_attn, name).kernel[...])
+
+
+def test_build_initialises_and_dropout_acts_only_in_training_mode():
+    model = build(config_lib.get_config("tiny"))
+    assert isinstance(model, Kosmos2)
+    assert param_count(model) == summarize(config_lib.get_config("tiny"))["total"]
+    ids, mask, image_mask, pixels = tiny_inputs()
     model.train()
-    a, b = model(ids, mask, image_mask, pixels=pixels), model(ids, mask, image_mask, pixels=pixels)
+    a, b = forward(model, ids, mask, image_mask, pixels=pixels), forward(model, ids, mask, image_mask, pixels=pixels)
     assert not np.allclose(a, b)
     model.eval()
-    c, d = model(ids, mask, image_mask, pixels=pixels), model(ids, mask, image_mask, pixels=pixels)
+    c, d = forward(model, ids, mask, image_mask, pixels=pixels), forward(model, ids, mask, image_mask, pixels=pixels)
     np.testing.assert_array_equal(c, d)
 
 
 def test_bfloat16_compute_keeps_float32_params_and_logits_close():
-    cfg32 = config_lib.get_config("tiny")
-    model32, model16 = build(cfg32, seed=1), build(cfg32.replace(compute_dtype="bfloat16"), seed=1)
+    model32, model16 = weights.load_pretrained(FIXTURE), weights.load_pretrained(FIXTURE, compute_dtype="bfloat16")
     model32.eval(), model16.eval()
     assert {x.dtype for x in jax.tree.leaves(nnx.state(model16, nnx.Param))} == {jnp.dtype(jnp.float32)}
-    ids, mask, image_mask, pixels = tiny_inputs(cfg32)
-    l32, l16 = model32(ids, mask, image_mask, pixels=pixels), model16(ids, mask, image_mask, pixels=pixels)
+    ids, mask, image_mask, pixels = tiny_inputs()
+    l32 = forward(model32, ids, mask, image_mask, pixels=pixels)
+    l16 = forward(model16, ids, mask, image_mask, pixels=pixels)
     assert l16.dtype == jnp.float32
     assert float(jnp.max(jnp.abs(l32 - l16))) < 0.1 * float(jnp.max(jnp.abs(l32)))
     with pytest.raises(ValueError, match="float16"):
-        _ = cfg32.replace(compute_dtype="float16").dtype
+        _ = model32.config.replace(compute_dtype="float16").dtype
 
 
 def test_unknown_size_is_refused():
     with pytest.raises(ValueError, match="huge"):
         config_lib.get_config("huge")
-    assert param_count(build(config_lib.get_config("tiny"))) == summarize(config_lib.get_config("tiny"))["total"]
-    assert isinstance(build(config_lib.get_config("tiny")), Kosmos2)

@@ -14,6 +14,7 @@ import pytest
 from flax import nnx
 
 from kosmos_jax.models import weights
+from kosmos_jax.models.kosmos2 import forward
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 TOL = 1e-4
@@ -61,7 +62,7 @@ def test_a_wrong_mapping_would_be_caught():
     model.eval()
     ln = model.text_model.model.layers[0].ffn.ffn_layernorm
     ln.scale.set_value(ln.scale.get_value()[::-1])
-    logits = model(jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
+    logits = forward(model, jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
                    jnp.asarray(ref["image_embeds_position_mask"], bool), image_embeds=jnp.asarray(ref["image_embeds"]))
     real = ref["attention_mask"].astype(bool)
     assert np.abs(np.asarray(logits) - ref["logits"])[real].max() > 100 * TOL

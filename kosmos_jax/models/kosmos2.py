@@ -46,7 +46,22 @@ class Kosmos2(nnx.Module):
 
 
 def build(cfg: Kosmos2Config, seed: int = 0) -> Kosmos2:
-    return Kosmos2(cfg, nnx.Rngs(seed))
+    """A freshly initialised model; initialisation runs as one compiled program (eager init
+    compiles every small op separately, which takes seconds even for the tiny model)."""
+    with _cheap_tracer_errors():
+        return nnx.jit(lambda: Kosmos2(cfg, nnx.Rngs(seed)))()
+
+
+@nnx.jit
+def forward(model: Kosmos2, input_ids, attention_mask, image_mask, pixels=None, image_embeds=None):
+    """`model(...)` compiled: logits [B, T, V]."""
+    return model(input_ids, attention_mask, image_mask, pixels=pixels, image_embeds=image_embeds)
+
+
+@nnx.jit
+def image_embeds(model: Kosmos2, pixels):
+    """`model.image_embeds(pixels)` compiled."""
+    return model.image_embeds(pixels)
 
 
 @contextlib.contextmanager

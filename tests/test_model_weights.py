@@ -1,0 +1,115 @@
+"""Weight import/export in transformers' layout (no torch) and vocabulary growth."""
+
+import json
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+from safetensors.numpy import load_file, save_file
+
+from kosmos_jax.models import weights
+from kosmos_jax.models.kosmos2 import forward
+
+FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
+
+
+def params_of(model):
+    return {".".join(map(str, p)): np.asarray(v.get_value()) for p, v in nnx.to_flat_state(nnx.state(model, nnx.Param))}
+
+
+def test_export_writes_exactly_transformers_keys_and_layouts(tmp_path):
+    model = weights.load_pretrained(FIXTURE)
+    weights.save_pretrained(model, tmp_path)
+    ours, theirs = load_file(tmp_path / "model.safetensors"), load_file(FIXTURE / "model.safetensors")
+    theirs.pop(weights.TIED_HEAD, None)
+    assert set(ours) == set(theirs)
+    for key in theirs:
+        np.testing.assert_array_equal(ours[key], theirs[key], err_msg=key)
+    config = json.loads((tmp_path / "config.json").read_text())
+    fixture_config = json.loads((FIXTURE / "config.json").read_text())
+    for key in ("embed_dim", "layers", "ffn_dim", "attention_heads", "vocab_size", "layer_norm_eps"):
+        assert config["text_config"][key] == fixture_config["text_config"][key]
+    assert config["latent_query_num"] == fixture_config["latent_query_num"]
+
+
+@pytest.mark.parametrize("max_shard_bytes", [None, 30_000])
+def test_round_trip_single_file_and_sharded(tmp_path, max_shard_bytes):
+    model = weights.load_pretrained(FIXTURE)
+    weights.save_pretrained(model, tmp_path, max_shard_bytes=max_shard_bytes)
+    if max_shard_bytes:
+        index = json.loads((tmp_path / "model.safetensors.index.json").read_text())
+        assert len(set(index["weight_map"].values())) > 1
+        assert not (tmp_path / "model.safetensors").exists()
+    back = params_of(weights.load_pretrained(tmp_path))
+    for key, value in params_of(model).items():
+        np.testing.assert_array_equal(back[key], value, err_msg=key)
+
+
+def test_import_errors_name_the_file_and_the_keys(tmp_path):
+    weights.save_pretrained(weights.load_pretrained(FIXTURE), tmp_path)
+    tensors = load_file(tmp_path / "model.safetensors")
+    tensors.pop("text_model.model.layer_norm.weight")
+    tensors["text_model.model.surprise.weight"] = np.zeros(3, np.float32)
+    save_file(tensors, str(tmp_path / "model.safetensors"))
+    with pytest.raises(ValueError, match=r"missing \['text_model.model.layer_norm.weight'\].*surprise"):
+        weights.load_pretrained(tmp_path)
+    with pytest.raises(FileNotFoundError, match="config.json"):
+        weights.load_pretrained(tmp_path / "nowhere")
+
+
+def test_import_refuses_wrong_shapes_and_untied_heads(tmp_path):
+    weights.save_pretrained(weights.load_pretrained(FIXTURE), tmp_path)
+    tensors = load_file(tmp_path / "model.safetensors")
+    good = dict(tensors)
+    tensors["text_model.model.layers.0.ffn.fc1.weight"] = np.zeros((36, 32), np.float32)
+    save_file(tensors, str(tmp_path / "model.safetensors"))
+    with pytest.raises(ValueError, match=r"fc1.weight has shape \(36, 32\).*\(37, 32\)"):
+        weights.load_pretrained(tmp_path)
+    good[weights.TIED_HEAD] = good[weights.EMBED_TOKENS] + 1.0
+    save_file(good, str(tmp_path / "model.safetensors"))
+    with pytest.raises(ValueError, match="untied"):
+        weights.load_pretrained(tmp_path)
+
+
+def test_vocabulary_growth_keeps_old_logits_and_starts_new_tokens_at_the_mean(tmp_path):
+    model = weights.load_pretrained(FIXTURE)
+    model.eval()
+    ref = dict(np.load(FIXTURE / "reference.npz"))
+    args = (jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
+            jnp.asarray(ref["image_embeds_position_mask"], bool))
+    before = np.asarray(forward(model, *args, image_embeds=jnp.asarray(ref["image_embeds"])))
+    old_table = np.asarray(model.text_model.model.embed_tokens.embedding.get_value())
+    weights.grow_vocabulary(model, 99 + 5, seed=1)
+    assert model.config.text.vocab_size == 104
+    after = np.asarray(forward(model, *args, image_embeds=jnp.asarray(ref["image_embeds"])))
+    assert after.shape[-1] == 104
+    np.testing.assert_allclose(after[..., :99], before, atol=1e-5)  # old rows and the old model unchanged
+    new_rows = np.asarray(model.text_model.model.embed_tokens.embedding.get_value())[99:]
+    np.testing.assert_allclose(new_rows, np.broadcast_to(old_table.mean(0), new_rows.shape), atol=1e-2 * old_table.std())
+    assert len({row.tobytes() for row in new_rows}) == 5  # distinct, so the new tokens can be told apart
+    # new tokens' logits sit near the mean logit, not at an extreme
+    real = ref["attention_mask"].astype(bool)
+    new_logits, old_logits = after[..., 99:][real], before[real]
+    assert np.all(np.abs(new_logits - old_logits.mean(-1, keepdims=True)) < 3 * old_logits.std(-1, keepdims=True))
+    # the grown model exports and imports with its new size
+    weights.save_pretrained(model, tmp_path)
+    assert weights.read_config(tmp_path).text.vocab_size == 104
+    np.testing.assert_array_equal(params_of(weights.load_pretrained(tmp_path))["text_model.model.embed_tokens.embedding"],
+                                  np.asarray(model.text_model.model.embed_tokens.embedding.get_value()))
+    with pytest.raises(ValueError, match="smaller"):
+        weights.grow_vocabulary(model, 50)
+
+
+def test_rng_state_is_filled_so_training_mode_works():
+    model = weights.load_pretrained(FIXTURE)
+    model.train()
+    ref = dict(np.load(FIXTURE / "reference.npz"))
+    args = (jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
+            jnp.asarray(ref["image_embeds_position_mask"], bool))
+    first = forward(model, *args, image_embeds=jnp.asarray(ref["image_embeds"]))
+    second = forward(model, *args, image_embeds=jnp.asarray(ref["image_embeds"]))
+    assert np.isfinite(np.asarray(first)).all() and not np.allclose(first, second)
+    assert jax.tree.leaves(nnx.state(model, nnx.RngKey))
