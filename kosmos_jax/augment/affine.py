@@ -86,8 +86,9 @@ def recipe_matrix(corner, angle, shift, crop_size, output_size):
         corner, jnp.asarray(angle)[..., None], shift)
     angle = angle[..., 0]
     to_crop = geometry.translation_matrix(-corner[..., 0], -corner[..., 1])
-    crop_centre = jnp.full(corner.shape, crop_size / 2, corner.dtype)
+    # zeros_like keeps the inputs' sharding (jnp.full would not, which explicit meshes reject)
+    crop_centre = jnp.zeros_like(corner) + crop_size / 2
     rotate = geometry.rotation_matrix(angle, crop_centre)
-    margin = jnp.full(angle.shape, float((crop_size - output_size) // 2), corner.dtype)
+    margin = jnp.zeros_like(angle) + float((crop_size - output_size) // 2)
     shift_then_crop = geometry.translation_matrix(shift[..., 0] - margin, shift[..., 1] - margin)
     return geometry.compose(shift_then_crop, geometry.compose(rotate, to_crop))

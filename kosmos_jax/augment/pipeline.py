@@ -106,8 +106,8 @@ def _as_keys(keys, batch):
         f"dtype {keys.dtype}")
 
 
-def _photo_matrices(key, grasps, mask, image_hw, config):
-    """[K, 2, 3] recipe matrices of one photo."""
+def _photo_draws(key, grasps, mask, image_hw, config):
+    """One photo's random draws: crop corner [2], angles [K], shifts [K, 2]."""
     crop_key, angle_key, shift_key = jax.random.split(key, 3)
     corner = affine.crop_corner(crop_key, grasps, mask, image_hw, config.crop_size,
                                 config.centre_policy, config.integer_steps)
@@ -116,8 +116,18 @@ def _photo_matrices(key, grasps, mask, image_hw, config):
     shifts = affine.sample_translations(
         shift_key, (rotations, translations), config.max_translation, config.integer_steps)
     angles = jnp.repeat(angles, translations)  # each angle shared by its translations
-    shifts = shifts.reshape(rotations * translations, 2)
-    return affine.recipe_matrix(corner[None], angles, shifts, config.crop_size, config.output_size)
+    return corner, angles, shifts.reshape(rotations * translations, 2)
+
+
+def recipe_matrices(keys, grasps, mask, image_hw, config):
+    """[B, K, 2, 3] recipe matrices, one key per photo.
+
+    Only the draws are vmapped; the matrices are built on whole batches, which keeps the
+    inputs' sharding under an explicit mesh.
+    """
+    corners, angles, shifts = jax.vmap(lambda k, g, m: _photo_draws(k, g, m, image_hw, config))(
+        keys, grasps, mask)
+    return affine.recipe_matrix(corners[:, None], angles, shifts, config.crop_size, config.output_size)
 
 
 def move_grasps(grasps, mask, matrices, output_size):
@@ -154,8 +164,7 @@ def augment(images, grasps, mask, keys, config: AugmentConfig = AugmentConfig())
     keys = _as_keys(keys, batch)
     per_photo = config.augmentations_per_photo
     grasps = grasps.astype(jnp.float32)
-    matrices = jax.vmap(lambda k, g, m: _photo_matrices(k, g, m, (height, width), config))(
-        keys, grasps, mask)  # [B, K, 2, 3]
+    matrices = recipe_matrices(keys, grasps, mask, (height, width), config)  # [B, K, 2, 3]
     size = config.output_size
     warped = warp_images(images, matrices, (size, size), config.border)
     repeated = jnp.broadcast_to(grasps[:, None], (batch, per_photo) + grasps.shape[1:])
