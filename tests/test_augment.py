@@ -228,6 +228,15 @@ def test_crop_centre_policies(policy):
         np.testing.assert_allclose(centre[:, 0], [[320.0, 240.0]] * 2, atol=0.51)
 
 
+def test_gt_centroid_without_grasps_falls_back_to_the_image_centre():
+    grasps, mask = pad_grasps([np.zeros((0, 5))], max_grasps=2)
+    config = AugmentConfig(max_translation=0.0)
+    out = augment(np.zeros((1, *PHOTO_HW, 1), np.float32), grasps, mask, jax.random.key(2), config)
+    inverse = np.linalg.inv(np.vstack([np.asarray(out.matrices[0], np.float64), [0, 0, 1.0]]))
+    np.testing.assert_allclose((inverse @ [112.5, 112.5, 1.0])[:2], [320.0, 240.0], atol=0.51)
+    assert int(out.dropped[0]) == 0 and not np.asarray(out.mask).any()
+
+
 # --- (5) bad input ---------------------------------------------------------------------------
 
 def test_bad_inputs_raise_clear_errors():
