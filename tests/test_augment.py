@@ -230,6 +230,7 @@ def test_crop_centre_policies(policy):
 
 def test_gt_centroid_without_grasps_falls_back_to_the_image_centre():
     grasps, mask = pad_grasps([np.zeros((0, 5))], max_grasps=2)
+    grasps[:] = np.nan  # padding rows are ignored whatever they hold
     config = AugmentConfig(max_translation=0.0)
     out = augment(np.zeros((1, *PHOTO_HW, 1), np.float32), grasps, mask, jax.random.key(2), config)
     inverse = np.linalg.inv(np.vstack([np.asarray(out.matrices[0], np.float64), [0, 0, 1.0]]))

@@ -46,7 +46,8 @@ def crop_corner(key, grasps, mask, image_hw, crop_size, policy, integer_centre):
         count = weights.sum()
         # The mean of a rectangle's four corners is its centre, so the corner mean is the mean
         # of the grasp centres.
-        total = (grasps[:, :2].astype(jnp.float32) * weights[:, None]).sum(axis=0)
+        centres = jnp.where(mask[:, None], grasps[:, :2].astype(jnp.float32), 0.0)  # padding may be NaN
+        total = centres.sum(axis=0)
         centre = jnp.where(count > 0, total / jnp.maximum(count, 1.0), image_centre)
         if integer_centre:
             centre = jnp.floor(centre)

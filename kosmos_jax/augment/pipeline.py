@@ -122,8 +122,7 @@ def _photo_draws(key, grasps, mask, image_hw, config):
 def recipe_matrices(keys, grasps, mask, image_hw, config):
     """[B, K, 2, 3] recipe matrices, one key per photo.
 
-    Only the draws are vmapped; the matrices are built on whole batches, which keeps the
-    inputs' sharding under an explicit mesh.
+    Only the random draws are vmapped (one key per photo); the matrices are built on the batch.
     """
     corners, angles, shifts = jax.vmap(lambda k, g, m: _photo_draws(k, g, m, image_hw, config))(
         keys, grasps, mask)
