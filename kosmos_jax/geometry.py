@@ -129,7 +129,7 @@ def translation_matrix(dx, dy):
 def compose(second, first):
     """The 2x3 affine that applies `first` then `second`."""
     xp = array_module(second, first)
-    bottom = xp.zeros(first.shape[:-2] + (1, 3), first.dtype)
-    bottom = bottom + xp.asarray([0.0, 0.0, 1.0], first.dtype)
+    # zeros_like keeps the input's sharding (an Explicit mesh refuses an unsharded operand)
+    bottom = xp.zeros_like(first[..., :1, :]) + xp.asarray([0.0, 0.0, 1.0], first.dtype)
     first3 = xp.concatenate([first, bottom], axis=-2)
     return xp.einsum("...ij,...jk->...ik", second, first3)
