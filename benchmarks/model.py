@@ -1,0 +1,136 @@
+"""Model benchmark, one run: float32 matmul peak, forward+backward MFU of the `small` config, decoding speed.
+
+    .venv/bin/python benchmarks/model.py [--batch 8 --length 128 --new-tokens 32]
+
+MFU FLOPs are counted twice: by XLA's cost analysis of the compiled step and by formula (matmuls
+and attention products only; backward = 2 x forward). Both are printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+
+from kosmos_jax.models import config as config_lib
+from kosmos_jax.models import decode
+from kosmos_jax.models.kosmos2 import build
+
+
+def best_time(fn, *args, repeats: int = 5) -> float:
+    jax.block_until_ready(fn(*args))  # compile and warm up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def matmul_peak(sizes=(1024, 2048, 4096)) -> dict:
+    """Best float32 GFLOP/s over square matmuls."""
+    results = {}
+    for n in sizes:
+        a = jax.random.normal(jax.random.key(0), (n, n), jnp.float32)
+        b = jax.random.normal(jax.random.key(1), (n, n), jnp.float32)
+        t = best_time(jax.jit(jnp.matmul), a, b, repeats=3 if n >= 4096 else 5)
+        results[n] = 2 * n**3 / t / 1e9
+    return {"gflops_by_size": {str(k): round(v, 1) for k, v in results.items()}, "peak_gflops": max(results.values())}
+
+
+def formula_flops(cfg: config_lib.Kosmos2Config, batch: int, length: int) -> float:
+    """Forward matmul + attention FLOPs (2 per multiply-add), times 3 for forward + backward."""
+    v, t = cfg.vision, cfg.text
+    nv = v.num_positions
+    vision = 2 * v.num_patches * v.num_channels * v.patch_size**2 * v.hidden_size
+    vision += v.num_hidden_layers * (4 * 2 * nv * v.hidden_size**2 + 2 * 2 * nv**2 * v.hidden_size
+                                     + 2 * 2 * nv * v.hidden_size * v.intermediate_size)
+    q, kv = cfg.latent_query_num, nv + cfg.latent_query_num
+    connector = 2 * nv * v.hidden_size * t.embed_dim + 2 * 2 * q * t.embed_dim**2 + 2 * 2 * kv * t.embed_dim**2
+    connector += 2 * 2 * q * kv * t.embed_dim
+    text = t.layers * (4 * 2 * length * t.embed_dim**2 + 2 * 2 * length**2 * t.embed_dim
+                       + 2 * 2 * length * t.embed_dim * t.ffn_dim)
+    text += 2 * length * t.embed_dim * t.vocab_size  # tied LM head
+    return 3.0 * batch * (vision + connector + text)
+
+
+def inputs(cfg, batch, length, seed=0):
+    rng = np.random.default_rng(seed)
+    ids = rng.integers(4, cfg.text.vocab_size, (batch, length)).astype(np.int32)
+    image_mask = np.zeros((batch, length), bool)
+    image_mask[:, 2:2 + cfg.latent_query_num] = True
+    size = cfg.vision.image_size
+    pixels = rng.normal(size=(batch, size, size, 3)).astype(np.float32)
+    return jnp.asarray(ids), jnp.ones((batch, length), bool), jnp.asarray(image_mask), jnp.asarray(pixels)
+
+
+def train_step_mfu(cfg, batch, length, peak_gflops) -> dict:
+    model = build(cfg)
+    model.eval()  # dropout off: measure the arithmetic, not the RNG
+    graphdef, params, rest = nnx.split(model, nnx.Param, ...)
+    ids, mask, image_mask, pixels = inputs(cfg, batch, length)
+
+    def loss_fn(params, ids, mask, image_mask, pixels):
+        logits = nnx.merge(graphdef, params, rest)(ids, mask, image_mask, pixels=pixels)
+        return optax.softmax_cross_entropy_with_integer_labels(logits[:, :-1], ids[:, 1:]).mean()
+
+    step = jax.jit(jax.value_and_grad(loss_fn))
+    compiled = step.lower(params, ids, mask, image_mask, pixels).compile()
+    cost = compiled.cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    xla_flops = float(cost.get("flops", float("nan")))
+    seconds = best_time(compiled, params, ids, mask, image_mask, pixels, repeats=3)
+    by_formula = formula_flops(cfg, batch, length)
+    return {
+        "batch": batch, "length": length, "step_seconds": round(seconds, 4),
+        "flops_xla": xla_flops, "flops_formula": by_formula,
+        "gflops_per_s_xla": round(xla_flops / seconds / 1e9, 1),
+        "gflops_per_s_formula": round(by_formula / seconds / 1e9, 1),
+        "mfu_xla": round(xla_flops / seconds / 1e9 / peak_gflops, 3),
+        "mfu_formula": round(by_formula / seconds / 1e9 / peak_gflops, 3),
+    }
+
+
+def decoding_speed(cfg, batch, prompt, new_tokens) -> dict:
+    model = build(cfg, seed=1)
+    model.eval()
+    ids, mask, image_mask, pixels = inputs(cfg, batch, prompt)
+    embeds = jax.jit(lambda p: nnx.merge(*nnx.split(model)).image_embeds(p))(pixels)
+    out = {}
+    for use_cache in (True, False):
+        seconds = best_time(lambda: decode.generate(model, ids, mask, image_mask, embeds,
+                                                    max_new_tokens=new_tokens, use_cache=use_cache), repeats=2)
+        out["cached" if use_cache else "uncached"] = round(batch * new_tokens / seconds, 1)
+    return {"batch": batch, "prompt_tokens": prompt, "new_tokens": new_tokens,
+            "tokens_per_s_cached": out["cached"], "tokens_per_s_uncached": out["uncached"],
+            "cache_speedup": round(out["cached"] / out["uncached"], 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", default="small", choices=sorted(config_lib.SIZES))
+    parser.add_argument("--batch", type=int, default=8)
+    parser.add_argument("--length", type=int, default=128)
+    parser.add_argument("--decode-batch", type=int, default=4)
+    parser.add_argument("--prompt", type=int, default=96)
+    parser.add_argument("--new-tokens", type=int, default=32)
+    args = parser.parse_args()
+    cfg = config_lib.get_config(args.size)
+    peak = matmul_peak()
+    report = {
+        "device": str(jax.devices()[0].device_kind), "backend": jax.default_backend(), "size": args.size,
+        "matmul_float32": peak,
+        "train_step": train_step_mfu(cfg, args.batch, args.length, peak["peak_gflops"]),
+        "decoding": decoding_speed(cfg, args.decode_batch, args.prompt, args.new_tokens),
+    }
+    print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
