@@ -52,7 +52,7 @@ def test_no_tensorflow_needed(written):
 
 def test_instruct_grasp_round_trip(written):
     path, records = written
-    assert "honest-image-fold2-name-aug1-xya" in str(path)
+    assert "honest-image-fold2-name-aug1-xya-code-individual-target-digits-len80-seed0" in str(path)
     splits = open_splits(path)
     assert sorted(splits) == ["test", "train"] and len(splits["train"]) == 23 and len(splits["test"]) == 5
     stored = {bytes(r["instruction"]).decode(): r for r in (splits["train"][i] for i in range(23))}
@@ -115,7 +115,6 @@ def test_batches_shapes_and_padding(written):
     assert batch["image"].shape == (5, SIZE, SIZE, 3) and batch["image"].dtype == np.uint8
     assert batch["tokens"].shape == (5, LENGTH) and batch["tokens"].dtype == np.int32
     assert batch["answers"].shape == (5, 8, 5)
-    # tfds stores examples in the order of their keys' hashes, so compare as sets
     assert sorted(batch["answers_mask"].sum(axis=1).tolist()) == [1, 2, 3, 4, 5]
     for answers, mask in zip(batch["answers"], batch["answers_mask"]):
         assert np.all(answers[~mask] == 0)
@@ -172,3 +171,16 @@ def test_pipeline_errors(written, tmp_path):
         open_splits(tmp_path)
     with pytest.raises(ValueError, match="max_answers=1"):
         next(iter(pipeline.make_dataset(open_splits(path)["test"], 5, shuffle=False, max_answers=1)))
+
+
+def test_shards_keep_generation_order(tmp_path, monkeypatch):
+    from kosmos_jax.storage.tfds_builders import InstructGrasp
+
+    monkeypatch.setattr(InstructGrasp, "SHARD_EXAMPLES", 10)
+    records = {"train": [_record(i) for i in range(23)], "test": [_record(50)]}
+    path = write_instruct_grasp(records, tmp_path, max_length=LENGTH, image_size=SIZE, fold=4)
+    assert len(sorted(path.glob("instruct_grasp-train.array_record-*-of-00003"))) == 3
+    train = open_splits(path)["train"]
+    assert [int(train[i]["grasp"][0]) for i in range(len(train))] == list(range(23))
+    with pytest.raises(ValueError, match="split 'test' has no examples"):
+        write_instruct_grasp({"train": records["train"], "test": []}, tmp_path / "empty", max_length=LENGTH, image_size=SIZE)

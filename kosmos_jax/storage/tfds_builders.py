@@ -6,6 +6,8 @@ Checked on tensorflow-datasets 4.9.10 with TensorFlow absent: `GeneratorBasedBui
 works as long as examples hand it encoded PNG bytes (we encode with OpenCV); reading decodes them
 back to uint8 arrays without TensorFlow. Strings come back as bytes. `DatasetInfo` is built
 directly: `dataset_info_from_configs` looks for metadata files beside the builder's module.
+tfds' split writer needs TensorFlow once a split passes 1 GB, so the builders write their shards
+themselves (`_LocalBuilder`), in tfds' layout.
 
 Two builders:
 - `CornellFolder`: every photo of a Cornell-format folder, given as `manual_dir`, in one split
@@ -28,9 +30,12 @@ from typing import Iterable, Mapping
 import cv2
 import numpy as np
 import tensorflow_datasets as tfds
+from array_record.python import array_record_module
 from etils import epath
+from tensorflow_datasets.core import example_serializer
 
 from kosmos_jax.data import cornell
+from kosmos_jax.storage.samples import ALL_BUILD_KINDS
 
 ARRAY_RECORD = "array_record"
 CORNELL_SPLIT = "full"
@@ -61,16 +66,59 @@ def _id_or_unknown(value) -> int:
 
 
 class _LocalBuilder(tfds.core.GeneratorBasedBuilder):
-    """A builder whose code path is its source file.
+    """A builder that streams its examples straight into array_record shards, in generation order.
 
-    tfds' own `code_path` probes package resources through `importlib_resources`, a backport that
-    is not installed here (and not needed on Python >= 3.9); the file path is what it computes.
+    tfds' own split writer keeps every serialized example of a split in memory and, past 1 GB,
+    spills them to disk through `tf.io.gfile`, which needs TensorFlow (a paper-density build of the
+    101 real photos failed there). This writer serializes each example with the features' own
+    encoder, as tfds does, and appends it to the current shard (`SHARD_EXAMPLES` a shard); file
+    names, split infos and metadata are tfds', so `builder_from_directory` reads the result. There
+    is no hash shuffle at write time: the order is the generation order, and readers shuffle.
+
+    Also: tfds' `code_path` probes package resources through `importlib_resources`, a backport not
+    installed here (nor needed on Python >= 3.9); the file path is what it computes.
     """
+
+    SHARD_EXAMPLES = 4096
 
     @tfds.core.utils.classproperty
     @classmethod
     def code_path(cls) -> epath.Path:
         return epath.Path(inspect.getfile(cls))
+
+    def _generate_splits(self, dl_manager, download_config):
+        return [
+            _write_split(self.info.features, self._get_filename_template(split_name=split), examples, self.SHARD_EXAMPLES)
+            for split, examples in self._split_generators(dl_manager).items()
+        ]
+
+
+def _write_split(features, template, examples, shard_examples: int) -> tfds.core.SplitInfo:
+    """Write (key, example) pairs into array_record shards named by `template`; its SplitInfo."""
+    serializer = example_serializer.ExampleSerializer(features.get_serialized_info())
+    parts: list[pathlib.Path] = []
+    lengths: list[int] = []
+    total_bytes = 0
+    writer = None
+    for _, example in examples:
+        if writer is None:
+            parts.append(pathlib.Path(template.data_dir) / f".{template.split}-part{len(parts):05d}")
+            writer = array_record_module.ArrayRecordWriter(str(parts[-1]), "group_size:1")
+            lengths.append(0)
+        data = serializer.serialize_example(features.encode_example(example))
+        writer.write(data)
+        total_bytes += len(data)
+        lengths[-1] += 1
+        if lengths[-1] == shard_examples:
+            writer.close()
+            writer = None
+    if writer is not None:
+        writer.close()
+    if not lengths:
+        raise ValueError(f"split {template.split!r} has no examples to write")
+    for index, part in enumerate(parts):
+        part.rename(template.sharded_filepath(shard_index=index, num_shards=len(parts)))
+    return tfds.core.SplitInfo(name=template.split, shard_lengths=lengths, num_bytes=total_bytes, filename_template=template)
 
 
 class CornellFolder(_LocalBuilder):
@@ -153,20 +201,22 @@ class InstructGraspConfig(tfds.core.BuilderConfig):
     max_answers: int = 64
 
 
-def config_name(protocol: str, split_by: str, fold: int, kinds: Iterable[str], augmentations: int, representation: str) -> str:
-    """e.g. "honest-image-fold0-all-aug16-xya" (the kinds spelled out when not all of them)."""
-    from kosmos_jax.storage.samples import ALL_BUILD_KINDS
-
-    kinds = tuple(kinds)
-    label = "all" if sorted(kinds) == sorted(ALL_BUILD_KINDS) else "_".join(kinds) or "all"
-    return f"{protocol}-{split_by}-fold{fold}-{label}-aug{augmentations}-{representation}"
+def config_name(config: InstructGraspConfig) -> str:
+    """Every field that changes the data, e.g.
+    "honest-image-fold0-all-aug16-xya-code-individual-target-digits-len192-seed0"."""
+    kinds = tuple(config.kinds)
+    label = "all" if sorted(kinds) == sorted(ALL_BUILD_KINDS) or not kinds else "_".join(kinds)
+    return "-".join([
+        config.protocol, config.split_by, f"fold{config.fold}", label, f"aug{config.augmentations}",
+        config.representation, "code" if config.angle_code else "radians",
+        "individual" if config.individual else "joint", config.loss_on, config.numbers,
+        f"len{config.max_length}", f"seed{config.seed}",
+    ])
 
 
 def make_config(**fields) -> InstructGraspConfig:
-    fields.setdefault("kinds", ())
-    fields["kinds"] = tuple(fields["kinds"])
-    probe = InstructGraspConfig(name="probe", **fields)
-    name = config_name(probe.protocol, probe.split_by, probe.fold, probe.kinds, probe.augmentations, probe.representation)
+    fields["kinds"] = tuple(fields.get("kinds", ()))
+    name = config_name(InstructGraspConfig(name="probe", **fields))
     return InstructGraspConfig(name=name, description=f"INSTRUCT-GRASP {name}", **fields)
 
 
@@ -199,7 +249,8 @@ class InstructGrasp(_LocalBuilder):
     """INSTRUCT-GRASP examples; `records` maps a split name to its examples (dicts of the features)."""
 
     VERSION = tfds.core.Version("1.0.0")
-    BUILDER_CONFIGS = [make_config()]
+    # no predefined configs: every build passes its own (a predefined one of the same name but other
+    # sizes would be refused by tfds)
 
     def __init__(self, *, records: Mapping[str, Iterable[dict]] | None = None, **kwargs):
         self._records = records
