@@ -82,15 +82,17 @@ def test_random_logits_under_the_constraint_always_give_a_parsable_answer(repres
 def test_every_formatted_answer_is_admitted(representation, angle_code):
     vocab = toy_vocabulary()
     constraint = TokenConstraint(vocab, EOS, representation, angle_code=angle_code, image_size=224)
+    step = jax.jit(lambda cstate, token: (constraint.allowed(cstate, len(vocab))[0], constraint.advance(cstate, token)))
     rng = np.random.default_rng(1)
     for _ in range(15):
         grasp = [rng.uniform(40, 180), rng.uniform(40, 180), rng.uniform(10, 60), rng.uniform(5, 30), rng.uniform(-1.5, 1.5)]
         text = " " + grasp_text.format_grasp(grasp, representation, angle_code=angle_code, image_size=224)
         cstate = constraint.init(1)
         for token in tokenize(text, vocab):
-            assert bool(constraint.allowed(cstate, len(vocab))[0, token]), (text, vocab[token])
-            cstate = constraint.advance(cstate, jnp.asarray([token]))
-        assert bool(constraint.allowed(cstate, len(vocab))[0, EOS]), text
+            allowed, cstate = step(cstate, jnp.asarray([token]))
+            assert bool(allowed[token]), (text, vocab[token])
+        allowed, _ = step(cstate, jnp.asarray([EOS]))
+        assert bool(allowed[EOS]), text
 
 
 def test_order_relations_are_enforced():
