@@ -151,3 +151,24 @@ def test_bfloat16_compute_keeps_float32_params_and_logits_close():
 def test_unknown_size_is_refused():
     with pytest.raises(ValueError, match="huge"):
         config_lib.get_config("huge")
+
+
+def test_summary_cli_prints_json(capsys):
+    import json
+
+    from kosmos_jax.models import summary
+
+    summary.main(["--size", "tiny"])
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["size"] == "tiny" and printed["total"] == sum(printed["parts"].values()) == 39816
+
+
+def test_config_json_round_trip_and_refusals():
+    cfg = config_lib.get_config("kosmos2")
+    assert config_lib.Kosmos2Config.from_hf_dict(cfg.to_hf_dict()) == cfg
+    with pytest.raises(ValueError, match="model_type is 'clip'"):
+        config_lib.Kosmos2Config.from_hf_dict({"model_type": "clip"}, source="x/config.json")
+    bad = cfg.to_hf_dict()
+    bad["text_config"]["activation_function"] = "relu"
+    with pytest.raises(ValueError, match="x/config.json.*relu"):
+        config_lib.Kosmos2Config.from_hf_dict(bad, source="x/config.json")

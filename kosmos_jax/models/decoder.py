@@ -130,6 +130,8 @@ class TextTransformer(nnx.Module):
         self.dropout = nnx.Dropout(cfg.dropout, rngs=rngs)
 
     def embed(self, input_ids, positions, image_embeds=None, image_mask=None):
+        # transformers applies embedding dropout twice (in forward_embedding and again in forward);
+        # fairseq/torchscale, which trained KOSMOS-2, once. Once here; identical in eval mode.
         x = jnp.take(self.embed_tokens.embedding[...], input_ids, axis=0)
         x = scatter_image_embeds(x, image_embeds, image_mask) * self.embed_scale
         x = x + sinusoidal_positions(positions, self.cfg.embed_dim, self.cfg.pad_token_id)

@@ -35,6 +35,8 @@ class Kosmos2(nnx.Module):
 
         input_ids/attention_mask/image_mask are [B, T]; image_mask marks the latent_query_num slots
         the image embeddings are written into. Give `pixels` or precomputed `image_embeds`.
+        Positions come from attention_mask (transformers derives them from input_ids != pad id;
+        the same when padding uses the pad id).
         """
         if image_embeds is None:
             if pixels is None:
