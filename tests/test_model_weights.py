@@ -113,3 +113,16 @@ def test_rng_state_is_filled_so_training_mode_works():
     second = forward(model, *args, image_embeds=jnp.asarray(ref["image_embeds"]))
     assert np.isfinite(np.asarray(first)).all() and not np.allclose(first, second)
     assert jax.tree.leaves(nnx.state(model, nnx.RngKey))
+
+
+def test_vocabulary_growth_from_source_pieces():
+    model = weights.load_pretrained(FIXTURE)
+    table = np.asarray(model.text_model.model.embed_tokens.embedding.get_value())
+    weights.grow_vocabulary(model, 101, noise=0.0, source_ids=[[10, 11, 12], [40]])
+    grown = np.asarray(model.text_model.model.embed_tokens.embedding.get_value())
+    np.testing.assert_allclose(grown[99], table[[10, 11, 12]].mean(0), rtol=1e-6)
+    np.testing.assert_array_equal(grown[100], table[40])
+    with pytest.raises(ValueError, match=r"outside the current vocabulary of 101"):
+        weights.grow_vocabulary(model, 102, source_ids=[[500]])
+    with pytest.raises(ValueError, match="needs 1 non-empty"):
+        weights.grow_vocabulary(model, 102, source_ids=[[1], [2]])

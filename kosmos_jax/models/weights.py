@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import pathlib
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -165,11 +166,14 @@ def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes:
 
 
 # -- vocabulary growth --------------------------------------------------------------------------
-def grow_vocabulary(model: Kosmos2, new_vocab_size: int, seed: int = 0, noise: float = 1e-3) -> Kosmos2:
+def grow_vocabulary(model: Kosmos2, new_vocab_size: int, seed: int = 0, noise: float = 1e-3,
+                    source_ids: Sequence[Sequence[int]] | None = None) -> Kosmos2:
     """Add rows to the (tied) token embedding, in place; returns the model.
 
-    New rows are the mean of the existing rows plus small noise: the new tokens start with logits
-    near the average one (no token suddenly dominates) and distinct from each other.
+    By default a new row is the mean of the existing rows plus small noise: the new token starts
+    with a logit near the average one (no token suddenly dominates) and distinct from the others.
+    With `source_ids`, new row i is instead the mean of the rows `source_ids[i]` (e.g. the pieces
+    the tokenizer used to spell the new token's text before it existed), plus the same noise.
     """
     embed = model.text_model.model.embed_tokens
     table = embed.embedding.get_value()
@@ -178,9 +182,17 @@ def grow_vocabulary(model: Kosmos2, new_vocab_size: int, seed: int = 0, noise: f
         raise ValueError(f"new vocabulary size {new_vocab_size} is smaller than the current {old}")
     if new_vocab_size == old:
         return model
-    mean = table.mean(axis=0)
-    spread = noise * table.std()
-    extra = mean + spread * jax.random.normal(jax.random.key(seed), (new_vocab_size - old, table.shape[1]), table.dtype)
+    added = new_vocab_size - old
+    if source_ids is None:
+        base = jnp.broadcast_to(table.mean(axis=0), (added, table.shape[1]))
+    else:
+        if len(source_ids) != added or any(len(ids) == 0 for ids in source_ids):
+            raise ValueError(f"source_ids needs {added} non-empty id lists, got {[len(i) for i in source_ids]}")
+        bad = [i for ids in source_ids for i in ids if not 0 <= i < old]
+        if bad:
+            raise ValueError(f"source_ids {bad} outside the current vocabulary of {old}")
+        base = jnp.stack([table[jnp.asarray(ids)].mean(axis=0) for ids in source_ids])
+    extra = base + noise * table.std() * jax.random.normal(jax.random.key(seed), base.shape, table.dtype)
     embed.embedding.set_value(jnp.concatenate([table, extra], axis=0))
     embed.num_embeddings = new_vocab_size
     model.config = model.config.with_vocab_size(new_vocab_size)
