@@ -409,6 +409,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError, KeyError) as error:
         print(f"build failed: {error}", file=sys.stderr)
         return 2
+    except BuildCheckError as error:  # a must-hold property broke: a bug upstream, not bad input
+        print(f"build failed a check: {error}", file=sys.stderr)
+        return 3
     print(json.dumps(stats, indent=1))
     return 0
 
