@@ -58,11 +58,13 @@ def dot_product_attention(q, k, v, mask, dropout: nnx.Dropout | None = None):
     weights instead of NaN, as PyTorch's additive finfo.min mask does.
     """
     scale = q.shape[-1] ** -0.5
-    scores = jnp.einsum("bthd,bshd->bhts", q, k, preferred_element_type=jnp.float32) * scale
+    # heads-major layout for the two batched matmuls: about 2x faster on CPU than contracting in place
+    q, k, v = (x.transpose(0, 2, 1, 3) for x in (q, k, v))
+    scores = jnp.einsum("bhtd,bhsd->bhts", q, k, preferred_element_type=jnp.float32) * scale
     if mask is not None:
         scores = jnp.where(mask, scores, jnp.finfo(jnp.float32).min)
     weights = jax.nn.softmax(scores, axis=-1)
     if dropout is not None:
         weights = dropout(weights)
-    out = jnp.einsum("bhts,bshd->bthd", weights.astype(v.dtype), v)
+    out = jnp.einsum("bhts,bhsd->bhtd", weights.astype(v.dtype), v).transpose(0, 2, 1, 3)
     return constrain(out, ("batch", "length", "act_heads", None))
