@@ -4,6 +4,11 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 WORKERS ?= 2
+# XLA's CPU runtime allocates each step's large buffers afresh; glibc maps them with 4 KiB pages and
+# the kernel faults them in again every step (about a fifth of a training step's CPU time here).
+# Transparent huge pages for glibc's mapped chunks remove almost all of those faults: see the
+# `minor_page_faults_per_step` of benchmarks/model.py. An explicit GLIBC_TUNABLES wins.
+export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1
 
 .PHONY: setup demo test test-slow bench clean
 

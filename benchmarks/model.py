@@ -1,6 +1,10 @@
 """Model benchmark, one run: float32 matmul peak, forward+backward MFU of the `small` config, decoding speed.
 
-    .venv/bin/python benchmarks/model.py [--batch 8 --length 128 --new-tokens 32]
+    make bench                     # all benchmarks, with GLIBC_TUNABLES=glibc.malloc.hugetlb=1
+    GLIBC_TUNABLES=glibc.malloc.hugetlb=1 .venv/bin/python benchmarks/model.py [--batch 8 --length 128]
+
+Without the glibc tunable, the kernel faults in the step's fresh buffers 4 KiB at a time on every
+step; `minor_page_faults_per_step` shows it (see the Makefile).
 
 MFU FLOPs are counted twice: by XLA's cost analysis of the compiled step and by formula (matmuls
 and attention products only; backward = 2 x forward). Both are printed.
@@ -10,6 +14,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import time
 
 import jax
@@ -86,6 +92,9 @@ def train_step_mfu(cfg, batch, length, peak_gflops) -> dict:
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     xla_flops = float(cost.get("flops", float("nan")))
     seconds = best_time(compiled, params, ids, mask, image_mask, pixels, repeats=3)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    jax.block_until_ready(compiled(params, ids, mask, image_mask, pixels))
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
     by_formula = formula_flops(cfg, batch, length)
     return {
         "batch": batch, "length": length, "step_seconds": round(seconds, 4),
@@ -94,6 +103,7 @@ def train_step_mfu(cfg, batch, length, peak_gflops) -> dict:
         "gflops_per_s_formula": round(by_formula / seconds / 1e9, 1),
         "mfu_xla": round(xla_flops / seconds / 1e9 / peak_gflops, 3),
         "mfu_formula": round(by_formula / seconds / 1e9 / peak_gflops, 3),
+        "minor_page_faults_per_step": faults,
     }
 
 
@@ -132,6 +142,7 @@ def main() -> None:
         train[f"mfu_{key}"] = round(train[f"gflops_per_s_{key}"] / peak, 3)
     report = {
         "device": str(jax.devices()[0].device_kind), "backend": jax.default_backend(), "size": args.size,
+        "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),  # `make bench` sets malloc.hugetlb=1
         "matmul_float32": {"before": before, "after": after, "peak_gflops": round(peak, 1)},
         "train_step": train,
         "decoding": decoding_speed(cfg, args.decode_batch, args.prompt, args.new_tokens),

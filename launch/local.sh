@@ -17,6 +17,8 @@ if [ ! -f "$repo/${config%%:*}" ] && [ ! -f "${config%%:*}" ]; then
   echo "$0: config file ${config%%:*} not found" >&2
   exit 2
 fi
+# huge pages for large CPU buffers: see the Makefile
+export GLIBC_TUNABLES="${GLIBC_TUNABLES:-glibc.malloc.hugetlb=1}"
 if [ -n "${FAKE_DEVICES:-}" ]; then
   export XLA_FLAGS="${XLA_FLAGS:-} --xla_force_host_platform_device_count=${FAKE_DEVICES}"
 fi
