@@ -10,7 +10,7 @@ WORKERS ?= 2
 # `minor_page_faults_per_step` of benchmarks/model.py. An explicit GLIBC_TUNABLES wins.
 export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1
 
-.PHONY: setup demo test test-slow bench clean
+.PHONY: setup demo test test-slow test-parity bench clean
 
 setup: $(STAMP)
 
@@ -28,6 +28,11 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -n $(WORKERS) -q -m slow
+
+# The live comparison with transformers' PyTorch KOSMOS-2 (installs the CPU build of torch, ~1 GB).
+test-parity: setup
+	$(PY) -m pip install --quiet -e '.[test,parity]'
+	$(PY) -m pytest -q -p no:xdist tests/test_model_parity.py
 
 bench: setup
 	for b in benchmarks/*.py; do $(PY) $$b || exit 1; done
