@@ -3,6 +3,7 @@
 import base64
 import http.server
 import json
+import socket
 import threading
 import time
 
@@ -137,6 +138,81 @@ def test_refused_connection_is_retried_then_reported(tmp_path):
     with pytest.raises(vlm.VLMError, match=r"failed .* on all 2 tries"):
         c.ask(IMAGE, "hello")
     assert c.calls == 2
+
+
+class RawServer:
+    """A bare TCP server on 127.0.0.1 that reads each request whole, then acts on the next entry of
+    `script` (the last one repeats): "close" hangs up without a byte, "junk" answers bytes that are
+    not HTTP, any bytes are sent as the whole HTTP reply."""
+
+    def __init__(self, script):
+        self.script = list(script)
+        self.connections = 0
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}/v1"
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+
+    def _read_request(self, conn):
+        data = b""
+        while b"\r\n\r\n" not in data:
+            chunk = conn.recv(65536)
+            if not chunk:
+                return
+            data += chunk
+        head, body = data.split(b"\r\n\r\n", 1)
+        length = next(int(line.split(b":")[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length"))
+        while len(body) < length:
+            body += conn.recv(65536)
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:  # closed by __exit__
+                return
+            with conn:
+                self.connections += 1
+                action = self.script[min(self.connections, len(self.script)) - 1]
+                self._read_request(conn)
+                if action == "junk":
+                    conn.sendall(b"SSH-2.0-OpenSSH_9.6\r\nnot http at all\r\n")
+                elif action != "close":
+                    conn.sendall(action)
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.sock.close()
+
+
+def http_ok(body):
+    return b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: %d\r\nConnection: close\r\n\r\n%s" % (
+        len(body), body)
+
+
+@pytest.mark.parametrize("failure", ["close", "junk"])
+def test_broken_answer_then_success_is_retried(tmp_path, failure):
+    with RawServer([failure, failure, http_ok(chat_reply("Grasp the mug."))]) as server:
+        c, sleeps = client(server, tmp_path)
+        assert c.sentence(IMAGE, "name") == "Grasp the mug."
+        assert server.connections == 3 and c.calls == 3
+    assert sleeps == [0.05, 0.1]
+
+
+@pytest.mark.parametrize("failure, cause", [("close", "RemoteDisconnected"), ("junk", "BadStatusLine")])
+def test_broken_answers_every_time_are_a_vlm_error_naming_the_url(tmp_path, failure, cause):
+    with RawServer([failure]) as server:
+        c, sleeps = client(server, tmp_path)
+        with pytest.raises(vlm.VLMError) as raised:
+            c.sentence(IMAGE, "name")
+        assert server.connections == 3
+    message = str(raised.value)
+    assert message.startswith(server.url + "/chat/completions failed (") and cause in message
+    assert message.endswith("on all 3 tries") and not isinstance(raised.value, vlm.VLMTimeoutError)
+    assert sleeps == [0.05, 0.1]
+    assert not list((tmp_path / "cache").rglob("*.json"))
 
 
 @pytest.mark.parametrize("body, message", [

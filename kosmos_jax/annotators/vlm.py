@@ -7,9 +7,11 @@ reply is searched for that sentence, so a model that adds a preamble or quotes s
 reply with no such sentence, or a body that is not a chat-completions JSON, is a `VLMResponseError`
 that quotes what came back.
 
-Requests time out after `timeout_s`; connection errors, time-outs, HTTP 429 and 5xx are retried up
-to `max_retries` times, waiting `backoff_s * 2**attempt` between tries; other HTTP errors fail at
-once. Every answer is cached on disk as JSON under `cache_dir`, keyed by sha256 of the image's PNG
+Requests time out after `timeout_s`. Transport failures (refused or reset connections, a server
+that closes without answering, a reply that is not HTTP), time-outs, HTTP 429 and 5xx are retried
+up to `max_retries` times, waiting `backoff_s * 2**(k - 1)` before retry k = 1, 2, ... (backoff_s,
+2 backoff_s, 4 backoff_s, ...); other HTTP errors fail at once. Every failure is a `VLMError` that
+names the URL. Every answer is cached on disk as JSON under `cache_dir`, keyed by sha256 of the image's PNG
 bytes, the prompt and the model, so that rebuilding a dataset makes no calls.
 """
 
@@ -18,6 +20,7 @@ from __future__ import annotations
 import base64
 import dataclasses
 import hashlib
+import http.client
 import json
 import os
 import pathlib
@@ -188,9 +191,13 @@ class VLMClient:
             except urllib.error.URLError as error:
                 last = error
                 timed_out = isinstance(error.reason, (TimeoutError, socket.timeout))
+            except (http.client.HTTPException, OSError) as error:
+                # raised outside urllib's URLError wrapping: RemoteDisconnected (closed without a
+                # reply), BadStatusLine (not HTTP), IncompleteRead, a reset while reading the body
+                last, timed_out = error, False
         kind = VLMTimeoutError if timed_out else VLMError
         what = f"timed out after {self.timeout_s} s" if timed_out else f"failed ({last!r})"
-        raise kind(f"{self._url()} {what} on all {self.max_retries + 1} tries")
+        raise kind(f"{self._url()} {what} on all {self.max_retries + 1} tries") from last
 
     def ask(self, image, prompt: str) -> str:
         """The model's text reply to the prompt about the image (from the cache when there)."""
