@@ -118,8 +118,28 @@ def test_rule_colour_of_a_two_colour_object():
     assert rules.colour_phrase(["green", "yellow", "silver"]) == "green, yellow, and silver"
 
 
+def test_rule_colour_of_a_many_coloured_object_is_its_most_frequent_colour():
+    # six stripes, none covering 20% of the object: the widest (red) names it
+    image = textured_background(np.random.default_rng(4))
+    x = 40
+    for width, rgb in ((28, (200, 30, 30)), (25, (30, 70, 210)), (24, (40, 150, 60)), (23, (240, 215, 40)),
+                       (22, (120, 50, 160)), (21, (25, 25, 25))):
+        cv2.rectangle(image, (x, 80), (x + width - 1, 150), rgb, -1)
+        x += width
+    assert rules.colour_names(image) == ["red"]
+    assert rules.words_from_pixels(image).colour == "red"
+    assert rules.colour_names(image, min_share=0.1) == ["red", "blue", "green"]  # the rule itself is unchanged
+
+
+def test_empty_words_are_no_words():
+    assert not ObjectWords(colour="").has("colour") and not ObjectWords(colour="  ").has("colour")
+    assert not ObjectWords(sentences={"colour": ""}).has("colour")
+    assert not ObjectWords(parts=("", None)).has("part")
+    assert ObjectWords(colour="red").has("colour") and ObjectWords(parts=(None, "handle")).has("part")
+
+
 def test_rule_colour_errors():
-    with pytest.raises(ValueError, match="no pixel differs"):
+    with pytest.raises(rules.NoColourError, match="no pixel differs"):
         rules.colour_names(np.full((64, 64, 3), 128, np.uint8))
     with pytest.raises(ValueError, match=r"\[H, W, 3\].*\(64, 64\)"):
         rules.colour_names(np.zeros((64, 64), np.uint8))

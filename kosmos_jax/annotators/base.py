@@ -35,9 +35,14 @@ class ObjectWords:
     sentences: Mapping[str, object] = dataclasses.field(default_factory=dict)
 
     def has(self, kind: str) -> bool:
+        """Whether there are words for `kind`; an empty or blank phrase is no words."""
         if kind == "part":
-            return any(self.parts) or any(self.sentences.get("part") or ())
-        return getattr(self, kind, None) is not None or bool(self.sentences.get(kind))
+            return any(_present(p) for p in self.parts) or any(_present(s) for s in self.sentences.get("part") or ())
+        return _present(getattr(self, kind, None)) or _present(self.sentences.get(kind))
+
+
+def _present(text) -> bool:
+    return text is not None and bool(str(text).strip())
 
 
 def require(words: ObjectWords | None, kind: str, photo_id: str) -> ObjectWords:

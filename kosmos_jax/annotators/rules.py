@@ -8,7 +8,9 @@ exceeds both `min_delta` and the border's own 99th-percentile spread plus `margi
 background is not mistaken for the object). Each object pixel takes the
 nearest name of a small palette in Lab space; the names that cover at least `min_share` of the
 object pixels (at most `max_names`, most frequent first) form the phrase: "black", "blue and
-white", "green, yellow, and silver" (the style of the KOSMOS-E annotations).
+white", "green, yellow, and silver" (the style of the KOSMOS-E annotations). When no name reaches
+`min_share` (a many-coloured object), the most frequent name stands for it, so the phrase is never
+empty. When no pixel differs from the background the colour cannot be named: `NoColourError`.
 
 Limits: a white or light grey object on a light table differs little from it and may be missed;
 shadows are damped (lightness counts half) but not removed. On the 100 real Cornell photos of
@@ -42,6 +44,11 @@ PALETTE = {
     "brown": (120, 75, 40),
     "beige": (225, 205, 165),
 }
+
+
+class NoColourError(ValueError):
+    """The photo's pixels give no colour (nothing differs from the background, or the region is too
+    small to estimate it); the photo has no colour words, its other words are unaffected."""
 
 
 def rgb_to_lab(rgb) -> np.ndarray:
@@ -83,7 +90,7 @@ def object_mask(image, grasps=None, border: int = 6, min_delta: float = 15.0, ma
         raise ValueError(f"colour annotation needs an [H, W, 3] RGB image, got shape {image.shape}")
     x0, y0, x1, y1 = _roi_box(image.shape[:2], grasps, grasp_margin)
     if min(x1 - x0, y1 - y0) <= 2 * border:
-        raise ValueError(f"region {x1 - x0} x {y1 - y0} too small for a {border}-pixel background border")
+        raise NoColourError(f"region {x1 - x0} x {y1 - y0} too small for a {border}-pixel background border")
     lab = rgb_to_lab(image[y0:y1, x0:x1])
     frame = np.ones(lab.shape[:2], bool)
     frame[border:-border, border:-border] = False
@@ -104,20 +111,23 @@ def colour_phrase(names: list[str]) -> str:
 
 
 def colour_names(image, grasps=None, min_share: float = 0.2, max_names: int = 3, **mask_options) -> list[str]:
-    """The palette names of the object's pixels, most frequent first."""
+    """The palette names of the object's pixels, most frequent first; never empty."""
+    if max_names < 1:
+        raise ValueError(f"max_names must be at least 1, got {max_names}")
     mask = object_mask(image, grasps, **mask_options)
     if not mask.any():
-        raise ValueError("no pixel differs from the background; cannot name the object's colour")
+        raise NoColourError("no pixel differs from the background; cannot name the object's colour")
     lab = rgb_to_lab(np.asarray(image))[mask]
     counts = np.bincount(nearest_colour_names(lab), minlength=len(_PALETTE_NAMES))
     shares = counts / counts.sum()
-    order = [int(i) for i in np.argsort(-shares, kind="stable") if shares[i] >= min_share][:max_names]
-    return [_PALETTE_NAMES[i] for i in order]
+    order = [int(i) for i in np.argsort(-shares, kind="stable")]
+    chosen = [i for i in order if shares[i] >= min_share][:max_names]
+    return [_PALETTE_NAMES[i] for i in (chosen or order[:1])]
 
 
 def words_from_pixels(image, grasps=None, **options) -> ObjectWords:
     """ObjectWords with the colour computed from pixels (the other kinds need another annotator)."""
-    return ObjectWords(colour=colour_phrase(colour_names(image, grasps, **options)))
+    return ObjectWords(colour=colour_phrase(colour_names(image, grasps, **options)) or None)
 
 
 def position_from_grasps(grasps, width: int, height: int) -> str:
