@@ -228,3 +228,41 @@ def test_real_annotated_photos_make_unambiguous_mosaics(cornell_root, kosmos_e_a
                     assert not colour_terms(target_words.colour) <= colour_terms(other.words.colour)
                 else:
                     assert getattr(other.words, kind).lower() != getattr(target_words, kind).lower()
+
+
+@pytest.mark.parametrize("kind, first, second", [
+    ("name", "cup", "coffee cup"), ("name", "coffee cup", "tea cup"), ("name", "a pair of sunglasses", "sunglasses"),
+    ("name", "Remote Control.", "remote control"), ("shape", "round", "round and flat"),
+    ("shape", "cylindrical", "Grasp the cylindrical object."), ("purpose", "writing", "writing and drawing"),
+    ("purpose", "drinking coffee", "drinking coffee with milk"), ("strategy", "It is long.", "It is long and thin."),
+])
+def test_phrases_that_overlap_clash_both_ways(kind, first, second):
+    a, b = ObjectWords(**{kind: first}), ObjectWords(**{kind: second})
+    assert distractors.words_clash(a, b, kind) and distractors.words_clash(b, a, kind)
+
+
+@pytest.mark.parametrize("kind, first, second", [
+    ("name", "coffee cup", "coffee maker"), ("name", "cup", "spoon"), ("shape", "round and flat", "round and tall"),
+    ("shape", "cylindrical", "rectangular"), ("purpose", "writing", "eating soup"),
+    ("strategy", "It is long. Grasp the middle.", "It is round. Grasp the rim."),
+])
+def test_distinct_phrases_do_not_clash(kind, first, second):
+    a, b = ObjectWords(**{kind: first}), ObjectWords(**{kind: second})
+    assert not distractors.words_clash(a, b, kind) and not distractors.words_clash(b, a, kind)
+
+
+def test_head_noun_counts_only_for_names():
+    assert distractors.content_words("The pair of sunglasses.") == ("pair", "sunglasses")
+    assert not distractors.words_clash(ObjectWords(shape="long round"), ObjectWords(shape="short round"), "shape")
+    assert distractors.words_clash(ObjectWords(name="long spoon"), ObjectWords(name="wooden spoon"), "name")
+
+
+def test_mosaic_rejects_a_distractor_whose_name_contains_the_target_name():
+    pool = [view("target", words("cup")), view("a", words("coffee cup")), view("b", words("tea cup")),
+            view("c", words("pen")), view("d", words("box")), view("e", words("spoon"))]
+    total = 0
+    for seed in range(100):
+        sample = mosaic.build_mosaic(pool, 0, "name", np.random.default_rng(seed))
+        assert {sample.photo_ids[i] for i in range(4) if i != sample.target} == {"c", "d", "e"}
+        total += sample.redraws
+    assert total > 0  # the clashing cups were drawn and rejected, and counted

@@ -12,6 +12,7 @@ first `count` candidates are taken, the paper's uniform random choice.
 from __future__ import annotations
 
 import dataclasses
+import re
 from typing import Callable
 
 import numpy as np
@@ -19,6 +20,10 @@ import numpy as np
 from kosmos_jax.annotators.base import ObjectWords, colour_terms, normalise_text
 
 WORD_CLASH_KINDS = ("name", "colour", "shape", "purpose", "strategy")
+# Words that do not tell two objects apart; "grasp" and "object" come from whole instruction
+# sentences ("Grasp the round object.") used where an annotator has no bare phrase.
+STOP_WORDS = frozenset(
+    "a an the and or of for with to in on at by its it is that this grasp object".split())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,10 +43,25 @@ def _field_text(words: ObjectWords, kind: str) -> str | None:
     return None if value is None else str(value)
 
 
+def content_words(text: str) -> tuple[str, ...]:
+    """The words of a phrase that describe the object, in order: lower case, stop words dropped."""
+    return tuple(w for w in re.findall(r"[a-z0-9]+(?:['-][a-z0-9]+)*", normalise_text(text)) if w not in STOP_WORDS)
+
+
+def phrases_clash(first: str, second: str, same_head: bool = False) -> bool:
+    """True when one phrase's content words are a subset of the other's ("cup" and "coffee cup",
+    "round" and "round and flat"), or, with `same_head`, when their last content words agree (the
+    head noun of a name: "coffee cup" and "tea cup")."""
+    a, b = content_words(first), content_words(second)
+    if set(a) <= set(b) or set(b) <= set(a):
+        return True
+    return same_head and a[-1] == b[-1]
+
+
 def words_clash(target: ObjectWords | None, candidate: ObjectWords | None, kind: str) -> bool:
     """True when an instruction of `kind` about `target` would also fit `candidate`.
 
-    name, shape, purpose, strategy: the same text (case, spaces and the final stop ignored).
+    name, shape, purpose, strategy: `phrases_clash`, names also by their head noun.
     colour: every colour word of the target is also a colour word of the candidate ("black"
     fits a "black and white" object too). A candidate without words for the kind cannot be shown
     to differ, so it clashes.
@@ -56,7 +76,7 @@ def words_clash(target: ObjectWords | None, candidate: ObjectWords | None, kind:
     if kind == "colour":
         target_terms = colour_terms(target_text)
         return target_terms <= colour_terms(candidate_text)
-    return normalise_text(target_text) == normalise_text(candidate_text)
+    return phrases_clash(target_text, candidate_text, same_head=kind == "name")
 
 
 def draw_distractors(
