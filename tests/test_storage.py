@@ -46,8 +46,54 @@ def written(tmp_path_factory):
     return path, records
 
 
-def test_no_tensorflow_needed(written):
-    assert "tensorflow" not in sys.modules
+_WITHOUT_TENSORFLOW = """
+import importlib.abc, importlib.util, sys
+
+# Every finder wrapped so that tensorflow is not found: `import tensorflow` fails and find_spec
+# gives None, exactly as when it is not installed (libraries probe both ways).
+class Hide(importlib.abc.MetaPathFinder):
+    def __init__(self, inner):
+        self.inner = inner
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "tensorflow" or name.startswith("tensorflow."):
+            return None
+        return self.inner.find_spec(name, path, target)
+
+    def invalidate_caches(self):
+        getattr(self.inner, "invalidate_caches", lambda: None)()
+
+sys.meta_path[:] = [Hide(finder) for finder in sys.meta_path]
+try:
+    import tensorflow
+    raise SystemExit("the block did not hold")
+except ModuleNotFoundError:
+    pass
+assert importlib.util.find_spec("tensorflow") is None
+sys.path.insert(0, sys.argv[2])
+import test_storage as t
+from kosmos_jax.storage import pipeline
+from kosmos_jax.storage.tfds_builders import open_splits, write_instruct_grasp
+
+records = {"train": [t._record(i) for i in range(6)], "test": [t._record(9)]}
+path = write_instruct_grasp(records, sys.argv[1], max_length=t.LENGTH, image_size=t.SIZE)
+(batch,) = list(pipeline.make_dataset(open_splits(path)["train"], 6, shuffle=False))
+assert sorted(batch["grasp"][:, 0].astype(int).tolist()) == list(range(6))
+assert not any(m == "tensorflow" or m.startswith("tensorflow.") for m in sys.modules)
+print("written and read without TensorFlow")
+"""
+
+
+def test_no_tensorflow_needed(tmp_path):
+    """Writing and reading work where `import tensorflow` fails, whether or not it is installed here."""
+    import pathlib
+    import subprocess
+
+    tests = pathlib.Path(__file__).parent
+    result = subprocess.run([sys.executable, "-c", _WITHOUT_TENSORFLOW, str(tmp_path), str(tests)],
+                            capture_output=True, text=True, cwd=tests.parent, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "written and read without TensorFlow" in result.stdout
 
 
 def test_instruct_grasp_round_trip(written):
@@ -127,9 +173,29 @@ def test_shuffle_is_seeded_and_shards_partition(written):
     assert order(seed=1) == order(seed=1)
     assert order(seed=1) != order(seed=2)
     assert sorted(order(seed=1)) == list(range(23))
-    shards = [order(seed=5, process_index=i, process_count=3) for i in range(3)]
+    # every example once, uneven shards, only when asked for
+    shards = [order(seed=5, process_index=i, process_count=3, even_shards=False) for i in range(3)]
     assert sorted(sum(shards, [])) == list(range(23))
     assert [len(s) for s in shards] == [8, 8, 7]
+
+
+@pytest.mark.parametrize("process_count, batch_size", [(2, 1), (3, 1), (3, 2), (4, 3), (5, 2)])
+def test_processes_get_even_disjoint_shards(written, process_count, batch_size):
+    path, _ = written
+    source = open_splits(path)["train"]  # 23 examples: never a multiple of these counts
+    per_epoch = 23 // process_count
+    make = lambda index, size: list(pipeline.make_dataset(source, size, seed=5, num_epochs=2, process_index=index,
+                                                          process_count=process_count))
+    counts = [len(make(index, batch_size)) for index in range(process_count)]
+    assert counts == [2 * per_epoch // batch_size] * process_count  # the same count on every process
+    shards = [sum((_ids(b) for b in make(index, 1)), []) for index in range(process_count)]
+    epochs = [[s[:per_epoch] for s in shards], [s[per_epoch: 2 * per_epoch] for s in shards]]
+    for epoch in epochs:
+        seen = sum(epoch, [])
+        assert len(seen) == len(set(seen)) == process_count * per_epoch  # disjoint, remainder left out
+    # the left-out remainder differs between epochs, so no example is never seen
+    if 23 % process_count:
+        assert set(sum(epochs[0], [])) != set(sum(epochs[1], []))
 
 
 def test_epochs_reshuffle(written):

@@ -3,7 +3,10 @@
 Order of operations: a seeded global shuffle of the whole split (every process draws the same
 permutation), then process `process_index` takes every `process_count`-th example of it, so the
 processes see disjoint parts of each epoch; then records become fixed-shape arrays and are
-batched. Epochs repeat with a fresh permutation each (`reseed_each_epoch`). The iterator's
+batched. Shards are even: the last `len % process_count` examples of each epoch's permutation are
+left out (other ones each epoch), so every process makes the same number of batches and no host
+waits in a collective for one that has run out (`even_shards=False` keeps them, for a
+single-process evaluation that must see every example). Epochs repeat with a fresh permutation each (`reseed_each_epoch`). The iterator's
 `get_state()` is a small dict that `set_state()` restores exactly, for saving beside a checkpoint.
 
 A batch holds the numeric features only (strings stay in the files): image uint8 [B, S, S, 3],
@@ -46,6 +49,7 @@ def make_dataset(
     process_count: int = 1,
     num_epochs: int | None = 1,
     drop_remainder: bool = True,
+    even_shards: bool = True,
     max_answers: int = 64,
     read_options: grain.ReadOptions | None = None,
 ) -> grain.IterDataset:
@@ -59,6 +63,8 @@ def make_dataset(
     dataset = grain.MapDataset.source(source)
     if shuffle:
         dataset = dataset.shuffle(seed=seed)
+    if even_shards:
+        dataset = dataset[: len(dataset) - len(dataset) % process_count]
     dataset = dataset[process_index::process_count]
     if num_epochs != 1:
         dataset = dataset.repeat(num_epochs, reseed_each_epoch=True)
