@@ -129,3 +129,25 @@ def test_corrupt_rgb_names_file(tmp_path, jacquard_root):
     with pytest.raises(jacquard.JacquardFormatError, match="_RGB.png"):
         jacquard.load_photos(tmp_path)
     assert jacquard.load_photos(tmp_path, load_images=False)[0].grasps.shape[0] > 0
+
+
+def test_broken_copies_of_real_grasps_name_file_and_line(tmp_path, jacquard_root):
+    source = jacquard.find_photos(jacquard_root)[0].grasps
+    lines = source.read_bytes().split(b"\r\n")
+    path = tmp_path / source.name
+    bad = list(lines)
+    bad[2] = b"\xe9" + bad[2]  # line 3, column 1
+    path.write_bytes(b"\r\n".join(bad))
+    with pytest.raises(jacquard.JacquardFormatError, match=rf"{path.name}, line 3, column 1: not UTF-8 text"):
+        jacquard.read_grasps(path)
+    bad = list(lines)
+    fields = bad[4].split(b";")
+    bad[4] = b";".join([fields[0], b"1_0", *fields[2:]])  # float() would read 10
+    path.write_bytes(b"\r\n".join(bad))
+    with pytest.raises(jacquard.JacquardFormatError, match=rf"{path.name}, line 5: not a number"):
+        jacquard.read_grasps(path)
+    bad = list(lines)
+    bad[6] = bad[6] + b"\x0c"  # a form feed is no line break: the line is malformed, and it is line 7
+    path.write_bytes(b"\r\n".join(bad))
+    with pytest.raises(jacquard.JacquardFormatError, match=rf"{path.name}, line 7: not a number"):
+        jacquard.read_grasps(path)

@@ -66,3 +66,29 @@ def test_malformed_files(tmp_path, kosmos_e_annotations):
     del raw["5"]["instruction_color"]
     with pytest.raises(ke.AnnotationMismatchError, match="pcd0105"):
         ke.parse_annotations(raw, "x.json")
+
+
+def test_broken_copies_name_file_line_and_column(tmp_path, kosmos_e_annotations):
+    text = kosmos_e_annotations.read_text()
+    path = tmp_path / "instructions-original.json"
+    path.write_text(text[: len(text) // 2])  # truncated mid-file
+    with pytest.raises(ke.AnnotationMismatchError, match=r"instructions-original\.json, line \d+, column \d+: not valid JSON"):
+        ke.read_annotations(path)
+    lines = text.split("\n")
+    assert len(lines) > 5
+    lines[3] = "}" + lines[3]  # a stray brace at the start of line 4
+    path.write_text("\n".join(lines))
+    with pytest.raises(ke.AnnotationMismatchError, match=r"instructions-original\.json, line 4, column 1: not valid JSON"):
+        ke.read_annotations(path)
+    lines = text.encode().split(b"\n")
+    lines[2] = b"  \xff" + lines[2]
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(ke.AnnotationMismatchError, match=r"instructions-original\.json, line 3, column 3: not UTF-8"):
+        ke.read_annotations(path)
+    path.write_text("[1, 2]")
+    with pytest.raises(ke.AnnotationMismatchError, match="expected a JSON object"):
+        ke.read_annotations(path)
+    names = tmp_path / "obj_names.txt"
+    names.write_bytes(kosmos_e_annotations.with_name("obj_names.txt").read_bytes().replace(b"\n", b"\n\x80", 1))
+    with pytest.raises(ke.AnnotationMismatchError, match=r"obj_names\.txt, line 2, column 1: not UTF-8"):
+        ke.read_object_names(names)

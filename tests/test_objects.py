@@ -52,3 +52,20 @@ def test_bad_lines_name_file_and_line(tmp_path, text, line):
 def test_repeated_identical_lines_are_one_entry():
     mapping = objects.parse_object_map("0100 1 Mug b\r\n0100 1 Mug b\r\n0101 2 Bowl b")
     assert mapping == {"pcd0100": (1, "Mug"), "pcd0101": (2, "Bowl")}
+
+
+def test_broken_copies_of_the_real_map_name_file_line_and_column(tmp_path, cornell_root):
+    lines = (cornell_root / "processedData" / "z.txt").read_bytes().split(b"\n")
+    path = tmp_path / "z.txt"
+    bad = list(lines)
+    bad[41] = bad[41][:5] + b"\xff" + bad[41][5:]  # line 42, column 6: a Latin-1 byte
+    path.write_bytes(b"\n".join(bad))
+    with pytest.raises(objects.ObjectMapFormatError, match=r"z\.txt, line 42, column 6: not UTF-8 text \(byte 0xff\)"):
+        objects.read_object_map(path)
+    bad = list(lines)
+    bad[9] = "\u0661\u0660\u0660 1 Mug pcdb_0001".encode()  # Arabic-Indic digits pass str.isdigit()
+    path.write_bytes(b"\n".join(bad))
+    with pytest.raises(objects.ObjectMapFormatError, match=r"z\.txt, line 10: image and object id must be integers"):
+        objects.read_object_map(path)
+    path.write_bytes(b"\xef\xbb\xbf" + b"\n".join(lines))  # a byte-order mark is not part of the first image id
+    assert objects.read_object_map(path) == objects.read_object_map(cornell_root / "processedData" / "z.txt")

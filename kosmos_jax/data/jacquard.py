@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from kosmos_jax import geometry
+from kosmos_jax.data import text_file
 from kosmos_jax.data.photo import Photo
 
 GRASPS_PATTERN = re.compile(r"^(\d+)_(.+)_grasps\.txt$")
@@ -87,18 +88,19 @@ def find_photos(root: str | pathlib.Path) -> list[JacquardFiles]:
 def parse_grasp_rows(text: str, source: str = "<text>") -> np.ndarray:
     """Jacquard grasp text -> [N, 5] rows (x, y, theta_deg, opening, jaw) as written."""
     rows = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
+    for number, line in enumerate(text_file.split_lines(text), start=1):
+        shown = line.strip(" \t")
+        if not shown:
             continue
-        fields = line.strip().split(";")
+        fields = [field.strip(" \t") for field in shown.split(";")]
         if len(fields) != 5:
-            raise JacquardFormatError(f"{source}, line {number}: expected 'x;y;theta;opening;jaw', got {line.strip()!r}")
+            raise JacquardFormatError(f"{source}, line {number}: expected 'x;y;theta;opening;jaw', got {shown!r}")
         try:
-            row = [float(field) for field in fields]
+            row = [text_file.parse_number(field) for field in fields]
         except ValueError:
-            raise JacquardFormatError(f"{source}, line {number}: not a number in {line.strip()!r}") from None
+            raise JacquardFormatError(f"{source}, line {number}: not a number in {shown!r}") from None
         if not all(math.isfinite(value) for value in row):
-            raise JacquardFormatError(f"{source}, line {number}: non-finite value in {line.strip()!r}")
+            raise JacquardFormatError(f"{source}, line {number}: non-finite value in {shown!r}")
         rows.append(row)
     return np.asarray(rows, np.float64).reshape(-1, 5)
 
@@ -119,7 +121,7 @@ def grasps_to_rows(grasps: np.ndarray) -> np.ndarray:
 
 def read_grasps(path: str | pathlib.Path) -> np.ndarray:
     path = pathlib.Path(path)
-    return rows_to_grasps(parse_grasp_rows(path.read_text(), str(path)))
+    return rows_to_grasps(parse_grasp_rows(text_file.read_text(path, JacquardFormatError), str(path)))
 
 
 def _decode(path: pathlib.Path, flags: int) -> np.ndarray:

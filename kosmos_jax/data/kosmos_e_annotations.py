@@ -26,6 +26,7 @@ import json
 import pathlib
 from typing import Any, Mapping, Sequence
 
+from kosmos_jax.data import text_file
 from kosmos_jax.data.cornell import FULL_SET_IDS
 from kosmos_jax.data.photo import Photo
 
@@ -101,13 +102,21 @@ def parse_annotations(raw: Mapping[str, Any], source: str = "<memory>") -> Kosmo
 
 def read_annotations(path: str | pathlib.Path) -> KosmosEAnnotations:
     path = pathlib.Path(path)
-    return parse_annotations(json.loads(path.read_text()), str(path))
+    text = text_file.read_text(path, AnnotationMismatchError)
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise AnnotationMismatchError(
+            f"{path}, line {error.lineno}, column {error.colno}: not valid JSON ({error.msg})") from None
+    if not isinstance(raw, dict):
+        raise AnnotationMismatchError(f"{path}: expected a JSON object of photo keys, got {type(raw).__name__}")
+    return parse_annotations(raw, str(path))
 
 
 def read_object_names(path: str | pathlib.Path) -> dict[str, str]:
     """KOSMOS-E's obj_names.txt (one name per line, full-set order) -> {photo id: name}."""
     path = pathlib.Path(path)
-    names = path.read_text().splitlines()
+    names = text_file.split_lines(text_file.read_text(path, AnnotationMismatchError))
     if len(names) != len(FULL_SET_IDS):
         raise AnnotationMismatchError(f"{path}: {len(names)} names, expected {len(FULL_SET_IDS)}")
     return dict(zip(FULL_SET_IDS, names))

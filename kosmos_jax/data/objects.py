@@ -3,14 +3,16 @@
 Each line of z.txt is `IMAGE OBJECT_ID CATEGORY BACKGROUND` (e.g. `0000 0 Aluminum_Can pcdb_0002`),
 one line per labelled rectangle of an older annotation round, so an image repeats on many lines;
 only the image -> (object id, category) map is kept. It is the grouping the honest object-wise
-split uses. An image listed with two different objects, or a malformed line, raises
-ObjectMapFormatError naming the file and line.
+split uses. An image listed with two different objects, a malformed line or bytes that are not
+UTF-8 raise ObjectMapFormatError naming the file and line.
 """
 
 from __future__ import annotations
 
 import pathlib
 from typing import Mapping
+
+from kosmos_jax.data import text_file
 
 ObjectMap = Mapping[str, tuple[int, str]]  # photo id ("pcd0100") -> (object id, category)
 
@@ -34,15 +36,15 @@ def parse_object_map(text: str, source: str = "<text>") -> dict[str, tuple[int, 
     """z.txt text -> {photo id: (object id, category)}, repeated lines merged."""
     mapping: dict[str, tuple[int, str]] = {}
     first_line: dict[str, int] = {}
-    for number, line in enumerate(text.splitlines(), start=1):
-        fields = line.split()
+    for number, line in enumerate(text_file.split_lines(text), start=1):
+        fields = text_file.split_fields(line)
         if not fields:
             continue
         if len(fields) != 4:
             raise ObjectMapFormatError(
                 f"{source}, line {number}: expected 'IMAGE OBJECT_ID CATEGORY BACKGROUND', got {line.strip()!r}")
         image, object_id, category, _ = fields
-        if not (image.isdigit() and object_id.isdigit()):
+        if not (image.isascii() and image.isdigit() and object_id.isascii() and object_id.isdigit()):
             raise ObjectMapFormatError(
                 f"{source}, line {number}: image and object id must be integers, got {line.strip()!r}")
         photo_id = f"pcd{int(image):04d}"
@@ -58,4 +60,4 @@ def parse_object_map(text: str, source: str = "<text>") -> dict[str, tuple[int, 
 
 def read_object_map(path: str | pathlib.Path) -> dict[str, tuple[int, str]]:
     path = pathlib.Path(path)
-    return parse_object_map(path.read_text(), str(path))
+    return parse_object_map(text_file.read_text(path, ObjectMapFormatError), str(path))
