@@ -154,6 +154,77 @@ def test_malformed_text_names_file_and_line(tmp_path, text, line):
     assert isinstance(error.value, ValueError)
 
 
+@pytest.mark.parametrize("text, line", [
+    ("1 2\n3 4\n5 6\u2028\n7 x\n", 3),        # U+2028 is no line break: the error stays on line 3
+    ("1 2\n\x0c3 4\n5 6\n7 8\n", 2),          # nor a form feed
+    ("1 2\n3 4\x0b5 6\n7 8\n", 2),             # nor a vertical tab
+    ("1 2\n3 4\n5 1_0\n7 8\n", 3),             # float() reads '1_0' as 10; a number has no underscore
+    ("1 2\n3 \u0664\n5 6\n7 8\n", 2),         # float() reads Arabic-Indic digits too
+])
+def test_only_ascii_numbers_and_real_line_breaks(tmp_path, text, line):
+    path = tmp_path / "pcd0001cpos.txt"
+    path.write_bytes(text.encode())
+    with pytest.raises(cornell.CornellFormatError, match=rf"pcd0001cpos\.txt, line {line}:"):
+        cornell.read_rectangles(path)
+
+
+def test_byte_order_mark_tabs_and_non_utf8(tmp_path):
+    path = tmp_path / "pcd0001cpos.txt"
+    path.write_bytes(b"\xef\xbb\xbf10 20\r\n30\t20\r\n30 25\r\n10 25\r\n")
+    grasps, _ = cornell.read_rectangles(path)
+    np.testing.assert_allclose(grasps, [[20, 22.5, 20, 5, 0]])
+    path.write_bytes(b"10 20\n30 20\r30 \xff25\n10 25\n")
+    with pytest.raises(cornell.CornellFormatError, match=r"pcd0001cpos\.txt, line 3, column 4: not UTF-8"):
+        cornell.read_rectangles(path)
+
+
+def raw_lines(data: bytes) -> list[bytes]:
+    """Lines as the Cornell files break them, counted here without the reader."""
+    return re.split(rb"\r\n|\r|\n", data)
+
+
+@pytest.mark.parametrize("folder, name, deleted", [("01", "pcd0100cpos.txt", 6), ("01", "pcd0132cpos.txt", 1),
+                                                  ("03", "pcd0312cpos.txt", 10)])
+def test_real_file_with_a_line_deleted(tmp_path, cornell_root, folder, name, deleted):
+    lines = raw_lines((cornell_root / folder / name).read_bytes())
+    ending = b"\r\n" if folder == "03" else b"\n"
+    broken = tmp_path / name
+    broken.write_bytes(ending.join(lines[: deleted - 1] + lines[deleted:]))
+    kept = [number for number, line in enumerate(raw_lines(broken.read_bytes()), start=1) if line.strip()]
+    assert len(kept) % 4 == 3
+    incomplete = kept[len(kept) - 3]  # the last rectangle has three of its four lines
+    with pytest.raises(cornell.CornellFormatError) as error:
+        cornell.read_rectangles(broken)
+    assert f"{broken}, line {incomplete}:" in str(error.value)
+
+
+@pytest.mark.parametrize("folder, name, line, bad", [("01", "pcd0100cpos.txt", 7, "abc"), ("01", "pcd0165cpos.txt", 2, "1_0"),
+                                                     ("01", "pcd0100cneg.txt", 4, "3.2.1"), ("03", "pcd0312cpos.txt", 13, "x")])
+def test_real_file_with_a_non_number_injected(tmp_path, cornell_root, folder, name, line, bad):
+    data = (cornell_root / folder / name).read_bytes()
+    lines = raw_lines(data)
+    x = lines[line - 1].split()[0]
+    lines[line - 1] = x + b" " + bad.encode()
+    broken = tmp_path / name
+    broken.write_bytes((b"\r\n" if b"\r\n" in data else b"\n").join(lines))
+    cornell.read_rectangles(cornell_root / folder / name)  # the real file itself reads
+    with pytest.raises(cornell.CornellFormatError) as error:
+        cornell.read_rectangles(broken)
+    assert f"{broken}, line {line}: not a number" in str(error.value)
+
+
+def test_real_photo_with_a_truncated_image(tmp_path, cornell_root):
+    for suffix in ("cpos.txt", "cneg.txt", "d.tiff"):
+        shutil.copy(cornell_root / "01" / f"pcd0101{suffix}", tmp_path)
+    png = (cornell_root / "01" / "pcd0101r.png").read_bytes()
+    for length in (len(png) // 2, len(png) - 16):  # the end chunk alone missing is an error too
+        (tmp_path / "pcd0101r.png").write_bytes(png[:length])
+        with pytest.raises(cornell.CornellFormatError, match=r"pcd0101r\.png: cannot decode"):
+            cornell.load_photos(tmp_path)
+    (tmp_path / "pcd0101r.png").write_bytes(png)
+    assert cornell.load_photos(tmp_path)[0].rgb.shape == (480, 640, 3)
+
+
 def test_corrupt_and_truncated_png_are_errors(tmp_path, cornell_root):
     shutil.copy(cornell_root / "01" / "pcd0100cpos.txt", tmp_path)
     png = (cornell_root / "01" / "pcd0100r.png").read_bytes()

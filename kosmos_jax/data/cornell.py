@@ -7,10 +7,12 @@ rectangles) and `pcdNNNNcneg.txt` (negative rectangles). A photo exists when its
 
 Rectangle files: one corner `x y` per line, 4 lines a rectangle, corners in order p0..p3 with
 p0 -> p1 the opening (geometry.corners_to_grasps). Blank lines are skipped; CRLF, CR or mixed line
-endings, trailing spaces and a missing final newline are all accepted. A rectangle with any NaN
-coordinate is dropped whole and counted (Photo.nan_dropped for cpos.txt). A line count that is not
-a multiple of 4, a line that is not two numbers, an infinite number or an undecodable image raise
-CornellFormatError, whose message names the file (and the line, for text files).
+endings (and only those end a line), trailing spaces or tabs, a UTF-8 byte-order mark and a
+missing final newline are all accepted. Numbers are ASCII decimals or NaN ('1_0' is not one). A
+rectangle with any NaN coordinate is dropped whole and counted (Photo.nan_dropped for cpos.txt).
+A line count that is not a multiple of 4, a line that is not two numbers, an infinite number,
+bytes that are not UTF-8 or an undecodable image raise CornellFormatError, whose message names
+the file (and the line, for text files).
 
 Photos come sorted by id, which is the order KOSMOS-E's annotation keys follow. With
 `load_images=False` the Photo's `rgb` and `depth` are None (only labels are read); Photo.height and
@@ -36,7 +38,7 @@ import cv2
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.data import objects
+from kosmos_jax.data import objects, text_file
 from kosmos_jax.data.photo import Photo
 
 FILE_PATTERN = re.compile(r"^(pcd\d{4})(r\.png|d\.tiff|cpos\.txt|cneg\.txt)$")
@@ -101,18 +103,19 @@ def list_photo_ids(root: str | pathlib.Path) -> list[str]:
 def parse_corners(text: str, source: str = "<text>") -> np.ndarray:
     """Cornell rectangle text -> [R, 4, 2] float64 corners (NaN kept). Raises CornellFormatError."""
     points, line_numbers = [], []
-    for number, line in enumerate(text.splitlines(), start=1):
-        fields = line.split()
+    for number, line in enumerate(text_file.split_lines(text.removeprefix("\ufeff")), start=1):
+        fields = text_file.split_fields(line)
         if not fields:
             continue
+        shown = line.strip(" \t")
         if len(fields) != 2:
-            raise CornellFormatError(f"{source}, line {number}: expected two numbers 'x y', got {line.strip()!r}")
+            raise CornellFormatError(f"{source}, line {number}: expected two numbers 'x y', got {shown!r}")
         try:
-            x, y = float(fields[0]), float(fields[1])
+            x, y = text_file.parse_number(fields[0]), text_file.parse_number(fields[1])
         except ValueError:
-            raise CornellFormatError(f"{source}, line {number}: not a number in {line.strip()!r}") from None
+            raise CornellFormatError(f"{source}, line {number}: not a number in {shown!r}") from None
         if math.isinf(x) or math.isinf(y):
-            raise CornellFormatError(f"{source}, line {number}: infinite coordinate in {line.strip()!r}")
+            raise CornellFormatError(f"{source}, line {number}: infinite coordinate in {shown!r}")
         points.append((x, y))
         line_numbers.append(number)
     if len(points) % 4:
@@ -128,11 +131,7 @@ def read_rectangles(path: str | pathlib.Path | None) -> tuple[np.ndarray, int]:
     if path is None:
         return np.zeros((0, 5)), 0
     path = pathlib.Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as error:
-        raise CornellFormatError(f"{path}: not text ({error})") from None
-    corners = parse_corners(text, str(path))
+    corners = parse_corners(text_file.read_text(path, CornellFormatError), str(path))
     has_nan = np.isnan(corners).any(axis=(1, 2))
     return geometry.corners_to_grasps(corners[~has_nan]).reshape(-1, 5), int(has_nan.sum())
 
