@@ -104,8 +104,9 @@ def grasp_success(
     """Rectangle-metric success per image.
 
     pred [B, 3] (x, y, theta) or [B, 5]; gts [B, M, 5] padded; gt_mask [B, M] marks real ones.
-    A prediction with a NaN (an unparseable answer) is a failure. Returns bool [B], and with
-    `return_iou` also the best IoU among angle-passing ground truths.
+    A prediction with a NaN (an unparseable answer) is a failure, and so is every prediction when
+    M = 0. Returns bool [B], and with `return_iou` also the best IoU among angle-passing ground
+    truths (0 when none).
     """
     _check("backend", backend, BACKENDS)
     _check("wh_policy", wh_policy, WH_POLICIES)
@@ -117,6 +118,9 @@ def grasp_success(
     if gt_mask.shape != gts.shape[:2]:
         raise ValueError(f"gt_mask must be {gts.shape[:2]}; got {gt_mask.shape}")
     dtype = gts.dtype if jnp.issubdtype(gts.dtype, jnp.floating) else jnp.float32
+    if gts.shape[1] == 0:  # no ground truth at all: nothing to match (and max over nothing is undefined)
+        success, best = jnp.zeros(gts.shape[0], bool), jnp.zeros(gts.shape[0], dtype)
+        return (success, best) if return_iou else success
     success, best = _success(
         pred.astype(dtype), gts.astype(dtype), gt_mask,
         jnp.asarray(math.radians(angle_threshold_deg), dtype), jnp.asarray(iou_threshold, dtype),
