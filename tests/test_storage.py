@@ -98,7 +98,7 @@ def test_no_tensorflow_needed(tmp_path):
 
 def test_instruct_grasp_round_trip(written):
     path, records = written
-    assert "honest-image-fold2-name-aug1-xya-code-individual-target-digits-len80-seed0" in str(path)
+    assert "honest-image-fold2-name-aug1-xya-code-individual-target-digits-len80-seed0-foldseed0" in str(path)
     splits = open_splits(path)
     assert sorted(splits) == ["test", "train"] and len(splits["train"]) == 23 and len(splits["test"]) == 5
     stored = {bytes(r["instruction"]).decode(): r for r in (splits["train"][i] for i in range(23))}

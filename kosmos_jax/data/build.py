@@ -1,11 +1,14 @@
 """Build an INSTRUCT-GRASP dataset from a Cornell-format folder and print its statistics as JSON.
 
     python -m kosmos_jax.data.build --source DIR --out DIR --protocol honest --split image --fold 0 \
-        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0]
+        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0]
 
 Steps: read the photos (kosmos_jax.data.cornell) -> words of each object (--annotations: the
 KOSMOS-E file or a synthetic_meta.json; else the folder's synthetic_meta.json; else colour from
-pixels) -> folds over photos or objects BEFORE augmentation (kosmos_jax.data.splits) -> views
+pixels, where a photo whose pixels name no colour loses only its colour kinds, listed in the
+statistics) -> folds over photos or objects BEFORE augmentation (kosmos_jax.data.splits, drawn
+with --fold-seed only, so builds that differ in --seed, the augmentation and instruction seed,
+share their test folds) -> views
 (kosmos_jax.storage.views: honest: --augmentations augmented views per training photo and one
 un-rotated crop per test photo; paper: --augmentations augmented copies of every photo, folded as
 the public code folds them) -> samples of every kind, mosaics drawn within a split
@@ -37,6 +40,7 @@ from kosmos_jax import geometry, grasp_text
 from kosmos_jax.annotators import kosmos_e as kosmos_e_words
 from kosmos_jax.annotators import rules as rule_words
 from kosmos_jax.annotators import synthetic as synthetic_words
+from kosmos_jax.annotators.base import ObjectWords
 from kosmos_jax.data import cornell, splits
 from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, read_annotations
 from kosmos_jax.storage import samples as sample_stage
@@ -66,7 +70,8 @@ class BuildConfig:
     augmentations: int = 1
     recipe: str = "random"
     kinds: tuple[str, ...] | None = None
-    seed: int = 0
+    seed: int = 0  # augmentation, instructions, mosaics, target choice
+    fold_seed: int | None = None  # fold assignment only; None: honest 0, paper the public code's 123
     train_crop: str | None = None
     test_crop: str | None = None
     representation: str = "xya"
@@ -81,6 +86,12 @@ class BuildConfig:
     text_pieces: int = 1000
     unambiguous: bool = True
     batch_size: int = 8
+
+    def folds_seed(self) -> int:
+        """The seed of the fold assignment actually used."""
+        if self.fold_seed is not None:
+            return self.fold_seed
+        return 0 if self.protocol == "honest" else splits.PAPER_SEED
 
     def format_config(self) -> FormatConfig:
         return FormatConfig(self.representation, self.angle_code, self.individual, self.loss_on,
@@ -124,8 +135,27 @@ def _synthetic(path: pathlib.Path, photos) -> dict:
     return words
 
 
-def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict]:
-    """(word source, {photo id: ObjectWords})."""
+def _rules(source: pathlib.Path, photos) -> tuple[dict, dict]:
+    """Colour words from pixels: ({photo id: ObjectWords}, {photo id: (kinds lacking, reason)}).
+
+    A photo whose pixels name no colour gets no colour words (its colour kinds are left out);
+    anything else wrong with a photo is an error naming it and its file."""
+    files = {f.id: f.rgb for f in cornell.find_photos(source)}
+    words, lacking = {}, {}
+    for photo in photos:
+        where = f"photo {photo.id} ({files.get(photo.id) or 'no image file'})"
+        try:
+            words[photo.id] = rule_words.words_from_pixels(photo.rgb, photo.grasps)
+        except rule_words.NoColourError as error:
+            words[photo.id] = ObjectWords()
+            lacking[photo.id] = (("colour",), f"{where}: {error}")
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from error
+    return words, lacking
+
+
+def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict, dict]:
+    """(word source, {photo id: ObjectWords}, {photo id: (kinds its words lack, reason)})."""
     if annotations is not None:
         path = pathlib.Path(annotations)
         if not path.is_file():
@@ -135,12 +165,12 @@ def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple
         except json.JSONDecodeError as error:
             raise AnnotationMismatchError(f"annotation file {path} is not JSON: {error}") from error
         if isinstance(document, dict) and "photos" in document:
-            return "synthetic", _synthetic(path, photos)
-        return "kosmos_e", _kosmos_e(path, photos)
+            return "synthetic", _synthetic(path, photos), {}
+        return "kosmos_e", _kosmos_e(path, photos), {}
     meta = source / "synthetic_meta.json"
     if meta.is_file():
-        return "synthetic", _synthetic(meta, photos)
-    return "rules", {photo.id: rule_words.words_from_pixels(photo.rgb, photo.grasps) for photo in photos}
+        return "synthetic", _synthetic(meta, photos), {}
+    return ("rules", *_rules(source, photos))
 
 
 # -- splits and views ---------------------------------------------------------------------------
@@ -154,7 +184,7 @@ def photo_split(config: BuildConfig, photos) -> dict[str, list]:
         raise ValueError(f"object-wise folds need an object id for every photo (processedData/z.txt); none for {missing}")
     train, test = splits.split(ids, config.fold, config.split, config.protocol,
                                object_ids=object_ids if config.split == "object" else None, k=config.folds,
-                               seed=config.seed if config.protocol == "honest" else None,
+                               seed=config.folds_seed(),
                                copies_per_photo=config.augmentations)
     return {"train": list(train), "test": list(test)}
 
@@ -232,11 +262,13 @@ def check_separation(ids: dict, protocol: str, split: str) -> dict:
 
 # -- the build ----------------------------------------------------------------------------------
 
-def _examples(config: BuildConfig, views, single, multi, split, mosaics=None):
-    """(view index, sample, example) of a split, in a fixed order."""
+def _examples(config: BuildConfig, views, single, multi, split, lacking, mosaics=None, skipped=None):
+    """(sample, example) of a split, in a fixed order."""
     format_config = config.format_config()
     tag = sample_stage.SPLIT_TAGS[split]
-    samples = sample_stage.split_samples(views, single, multi, config.seed, split, mosaics, config.unambiguous)
+    lacking_kinds = {photo: kinds for photo, (kinds, _) in lacking.items()}
+    samples = sample_stage.split_samples(views, single, multi, config.seed, split, mosaics, config.unambiguous,
+                                         lacking=lacking_kinds, skipped=skipped)
     for number, (_, sample) in enumerate(samples):
         rng = np.random.default_rng([config.seed, 99, tag, number])  # the same in both passes
         for example in format_sample(sample, format_config, rng):
@@ -260,7 +292,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
     format_config = config.format_config()
     photos = read_photos(source)
-    word_source, words = object_words(source, config.annotations, photos)
+    word_source, words, lacking = object_words(source, config.annotations, photos)
     kinds = config.kinds if config.kinds is not None else (("all",) if word_source != "rules" else RULE_KINDS)
     single, multi = sample_stage.parse_kinds(kinds)
     views, view_counts = split_views(config, photos, words)
@@ -274,8 +306,9 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         samples_by_kind: dict[str, int] = {}
         examples_by_kind: dict[str, int] = {}
         photo_ids, object_ids = set(), set()
+        skipped: dict[str, int] = {}
         last = None
-        for sample, example in _examples(config, views[split], single, multi, split, mosaics):
+        for sample, example in _examples(config, views[split], single, multi, split, lacking, mosaics, skipped):
             if sample is not last:
                 label = sample_stage.kind_label(sample)
                 samples_by_kind[label] = samples_by_kind.get(label, 0) + 1
@@ -302,12 +335,15 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             "mosaics_redrawn": mosaics.redraws,
             "mosaics_skipped": mosaics.skipped,
             "mosaic_skip_reasons": mosaics.skip_reasons,
+            "samples_skipped_without_words": dict(sorted(skipped.items())),
             "photo_ids": sorted(photo_ids),
             "object_ids": sorted(int(o) for o in object_ids),
         }
     stats["separation"] = check_separation(ids, config.protocol, config.split)
-    stats["config"] = {**dataclasses.asdict(config), "word_source": word_source, "single_kinds": list(single),
-                       "multi_kinds": list(multi), "photos": len(photos)}
+    stats["config"] = {**dataclasses.asdict(config), "fold_seed": config.folds_seed(), "word_source": word_source,
+                       "single_kinds": list(single), "multi_kinds": list(multi), "photos": len(photos)}
+    stats["photos_without_words"] = {photo: {"kinds": list(kinds), "reason": reason}
+                                     for photo, (kinds, reason) in sorted(lacking.items())}
     if not corpus:
         raise ValueError("the training split has no examples; nothing to train a tokenizer on or to write")
 
@@ -329,7 +365,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     png = tfds_builders.PngCache()
 
     def records(split):
-        for sample, example in _examples(config, views[split], single, multi, split):
+        for sample, example in _examples(config, views[split], single, multi, split, lacking):
             encoded = layout.encode_example(example, tokenizer, format_config)
             lengths[split].append(int(encoded["length"]))
             truncated[split] += int(encoded["truncated"])
@@ -343,7 +379,8 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             {split: records(split) for split in ("train", "test")}, out,
             protocol=config.protocol, split_by=config.split, fold=config.fold, folds=config.folds,
             kinds=tuple(k for k in single) + tuple(sample_stage.MULTI_PREFIX + k for k in multi),
-            augmentations=config.augmentations, seed=config.seed, representation=config.representation,
+            augmentations=config.augmentations, seed=config.seed, fold_seed=config.folds_seed(),
+            representation=config.representation,
             angle_code=config.angle_code, individual=config.individual, loss_on=config.loss_on,
             numbers=config.numbers, max_length=config.max_length)
         tokenizer_path = tokenizer.save(dataset_dir / "tokenizer.model")
@@ -377,7 +414,9 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
                         help="random: N rotations; paper: N/4 whole-degree rotations x 4 whole-pixel shifts")
     parser.add_argument("--kinds", nargs="+", help="non, angle, part, name, colour, shape, purpose, strategy, position, "
                         "multi-<kind>, or single / multi / all (default: all the words allow)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="augmentation, instructions and mosaics (not the folds)")
+    parser.add_argument("--fold-seed", type=int, help="the fold assignment only (default: 0, or the public code's "
+                        f"{splits.PAPER_SEED} in the paper protocol), so builds that differ in --seed share their test folds")
     parser.add_argument("--train-crop", choices=("gt_centroid", "image_centre", "random"))
     parser.add_argument("--test-crop", choices=("gt_centroid", "image_centre", "random"))
     parser.add_argument("--representation", choices=grasp_text.REPRESENTATIONS, default="xya")
@@ -395,7 +434,8 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
     return BuildConfig(
         source=args.source, out=args.out, protocol=args.protocol, split=args.split, fold=args.fold, folds=args.folds,
         annotations=args.annotations, augmentations=args.augmentations, recipe=args.recipe,
-        kinds=tuple(args.kinds) if args.kinds else None, seed=args.seed, train_crop=args.train_crop,
+        kinds=tuple(args.kinds) if args.kinds else None, seed=args.seed, fold_seed=args.fold_seed,
+        train_crop=args.train_crop,
         test_crop=args.test_crop, representation=args.representation, angle_code=not args.no_angle_code,
         individual=not args.joint, loss_on=args.loss_on, target_grasp=args.target_grasp, numbers=args.numbers,
         max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer, text_pieces=args.text_pieces,

@@ -191,6 +191,7 @@ class InstructGraspConfig(tfds.core.BuilderConfig):
     kinds: tuple[str, ...] = ()
     augmentations: int = 1
     seed: int = 0
+    fold_seed: int = 0
     representation: str = "xya"
     angle_code: bool = True
     individual: bool = True
@@ -203,14 +204,14 @@ class InstructGraspConfig(tfds.core.BuilderConfig):
 
 def config_name(config: InstructGraspConfig) -> str:
     """Every field that changes the data, e.g.
-    "honest-image-fold0-all-aug16-xya-code-individual-target-digits-len192-seed0"."""
+    "honest-image-fold0-all-aug16-xya-code-individual-target-digits-len192-seed0-foldseed0"."""
     kinds = tuple(config.kinds)
     label = "all" if sorted(kinds) == sorted(ALL_BUILD_KINDS) or not kinds else "_".join(kinds)
     return "-".join([
         config.protocol, config.split_by, f"fold{config.fold}", label, f"aug{config.augmentations}",
         config.representation, "code" if config.angle_code else "radians",
         "individual" if config.individual else "joint", config.loss_on, config.numbers,
-        f"len{config.max_length}", f"seed{config.seed}",
+        f"len{config.max_length}", f"seed{config.seed}", f"foldseed{config.fold_seed}",
     ])
 
 
