@@ -193,3 +193,14 @@ def test_bad_inputs(tokenizer):
     (example, _) = format_sample(_sample(_grasps(1)), FormatConfig())
     with pytest.raises(ValueError, match="max_length=40"):
         layout.encode_example(example, tokenizer, FormatConfig(max_length=40))
+
+
+def test_image_tags_occur_once_per_prompt(tokenizer):
+    config = FormatConfig(max_length=160)
+    for example in format_sample(_sample(_grasps(3, seed=5)), config):
+        encoded = layout.encode_example(example, tokenizer, config)
+        tokens = encoded["tokens"][: int(encoded["length"])].tolist()
+        assert tokens.count(tokenizer.image_start_id) == 1 and tokens.count(tokenizer.image_end_id) == 1
+        # the slot ids are exactly the masked positions
+        in_slot_range = np.isin(encoded["tokens"], special.IMAGE_SLOT_IDS)
+        assert np.array_equal(in_slot_range, encoded["image_mask"])

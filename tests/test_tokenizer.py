@@ -153,3 +153,22 @@ def test_errors(tmp_path, digits_tokenizer):
         load_tokenizer(path, scheme="fairseq", numbers="values")
     with pytest.raises(KeyError, match="x_999"):
         digits_tokenizer.token_id("x_999")
+
+
+def test_trained_tokenizer_reserves_the_image_slot_ids(digits_tokenizer, values_tokenizer, tmp_path):
+    for t in (digits_tokenizer, values_tokenizer):
+        assert t.reserves_image_slots
+        slots = set(special.IMAGE_SLOT_IDS)
+        assert not slots & {t.token_id(s) for s in special.SPECIAL_SYMBOLS}  # no tag or patch token
+        assert min(t.token_id(s) for s in special.SPECIAL_SYMBOLS) == special.FIRST_SLOT_ID + special.IMAGE_SLOTS
+        for text in _corpus() + ["<image_slot_03> <image></image><patch_index_0001>", "Grasp the cup 😀"]:
+            assert not slots & set(t.encode(text)), text  # text never produces a slot id
+        assert t.decode(list(special.IMAGE_SLOT_IDS) + t.encode("Grasp the cup.")) == "Grasp the cup."
+        assert load_tokenizer(t.save(tmp_path / "t.model"), scheme="native").reserves_image_slots
+
+
+def test_kosmos2_layout_keeps_its_slots_as_ordinary_pieces(tmp_path):
+    path, sp = _plain_spm(tmp_path)
+    t = load_tokenizer(path, scheme="fairseq")
+    assert not t.reserves_image_slots  # KOSMOS-2's scheme: ids 4..67 are pieces 3..66, as its code has it
+    assert t.encode("Grasp the remote control")[0] in special.IMAGE_SLOT_IDS  # text shares those ids

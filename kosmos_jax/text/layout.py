@@ -2,6 +2,12 @@
 
     <s> <image> slot_0 .. slot_63 </image> instruction cue value </s> <pad> ...
 
+The slots hold KOSMOS-2's ids 4..67 (`tokens.IMAGE_SLOT_IDS`). With KOSMOS-2's own dictionary
+these are ordinary pieces that text can also produce, and with a native model trained before the
+slots were reserved they are the tag and patch tokens (so `<image>` and `</image>` ids would occur
+twice); a tokenizer trained now reserves them (`Tokenizer.reserves_image_slots`). Either way the
+image span is `image_mask` (fixed positions 2..65), never a search for ids.
+
 Each text segment is encoded on its own, so segment boundaries are token boundaries and the loss
 mask covers exactly the target's tokens; SentencePiece's leading "▁" of each segment stands for
 the space between segments, so decoding the text tokens gives `TextExample.text` back.

@@ -4,7 +4,9 @@ Two ways to get one:
 - `train_tokenizer(texts, ...)`: trains a BPE model in memory on the generated text, with the
   KOSMOS-2 tag and patch tokens (and, with `numbers="values"`, one token per grasp value such as
   "x_12" or "a_77") as user-defined symbols. Its ids are native: the model is trained with
-  `<s>`=0, `<pad>`=1, `</s>`=2, `<unk>`=3 so that the prompt layout is the same as KOSMOS-2's.
+  `<s>`=0, `<pad>`=1, `</s>`=2, `<unk>`=3 and the 64 image slot ids 4..67 reserved (control
+  symbols, `tokens.IMAGE_SLOT_TOKENS`), so that the prompt layout is KOSMOS-2's and no slot id is
+  also a tag, patch or text id.
   Digits are split ("x_1 2"), so no number gets a piece of its own by accident. Training is
   deterministic (one thread, no sentence sampling).
 - `load_tokenizer(path, scheme="fairseq")`: an existing SentencePiece model such as KOSMOS-2's
@@ -104,6 +106,14 @@ class Tokenizer:
         return self._to_model_id(piece_id)
 
     @property
+    def reserves_image_slots(self) -> bool:
+        """Whether the image slot ids 4..67 are reserved (a tokenizer trained here) rather than
+        ordinary pieces that text also uses (KOSMOS-2's model, or a native model trained before
+        slots were reserved, where they are also the tag and patch tokens)."""
+        return all(self._sp.is_control(self._to_piece_id(i)) and self._sp.id_to_piece(self._to_piece_id(i)) == token
+                   for i, token in zip(special.IMAGE_SLOT_IDS, special.IMAGE_SLOT_TOKENS))
+
+    @property
     def image_start_id(self) -> int:
         return self.token_id(special.IMAGE_START)
 
@@ -169,8 +179,10 @@ def train_tokenizer(
         sentence_iterator=iter(texts),
         model_writer=model,
         model_type="bpe",
-        vocab_size=len(symbols) + 4 + 256 + text_pieces,
+        vocab_size=len(symbols) + 4 + special.IMAGE_SLOTS + 256 + text_pieces,
         hard_vocab_limit=False,
+        # ids 4..67, before the user-defined symbols (a list: a tuple arrives as one string)
+        control_symbols=list(special.IMAGE_SLOT_TOKENS),
         user_defined_symbols=symbols,
         bos_id=0,
         pad_id=1,

@@ -34,10 +34,15 @@ PATCH_TOKENS = tuple(f"<patch_index_{i:04d}>" for i in range(PATCH_GRID * PATCH_
 SPECIAL_SYMBOLS = TAG_TOKENS + PATCH_TOKENS
 
 IMAGE_SLOTS = 64
-# KOSMOS-2 fills its 64 image slots with the ids 4..67 (ordinary pieces); the model overwrites
-# their embeddings with the image features, so the ids only have to exist in the vocabulary.
+# KOSMOS-2 fills its 64 image slots with the ids 4..67; the model overwrites their embeddings with
+# the image features, so the ids only have to exist in the vocabulary. In KOSMOS-2's own
+# dictionary they are ordinary pieces (text may use them too; the slots are known by position,
+# `image_mask`, never by id). A tokenizer trained here reserves them: 4..67 are the control
+# symbols below, which no text encodes to and which decode to nothing, so the tags and patch
+# tokens (from 68 on) never share an id with a slot.
 FIRST_SLOT_ID = 4
 IMAGE_SLOT_IDS = tuple(range(FIRST_SLOT_ID, FIRST_SLOT_ID + IMAGE_SLOTS))
+IMAGE_SLOT_TOKENS = tuple(f"<image_slot_{i:02d}>" for i in range(IMAGE_SLOTS))
 
 NUMBER_MODES = ("digits", "values")
 
