@@ -78,20 +78,152 @@ def test_text_matches_kosmos_e_format():
     assert text == "Grasp center point coordinates: x_100,y_51 Grasp rotation angle in radians: a_128"
 
 
-@pytest.mark.parametrize(
-    "text, reason",
-    [
-        ("", "angle"),
-        ("Grasp center point coordinates: x_10,y_20", "angle"),
-        ("Grasp rotation angle in radians: a_12", "centre"),
-        ("Grasp center point coordinates: x_300,y_20 Grasp rotation angle in radians: a_12", "outside"),
-        ("Grasp center point coordinates: x_10,y_20 Grasp rotation angle in radians: a_256", "outside"),
-        ("Grasp center point coordinates: x_10,y_20 Grasp rotation angle in radians: a_1.5", "outside"),
-    ],
-)
-def test_bad_text_is_a_clear_failure(text, reason):
+CENTRE = "Grasp center point coordinates: "
+SIZE = "Grasp width and height: "
+BOX = "Grasp bounding box: "
+ANGLE = "Grasp rotation angle in radians: "
+GOOD = {"xya": CENTRE + "x_10,y_20", "xywha": CENTRE + "x_10,y_20 " + SIZE + "w_30,h_8",
+        "tlbra": BOX + "x_5,y_10,x_15,y_30", "tlbra_patch": BOX + "<patch_index_0033><patch_index_0100>"}
+# Every representation's location, broken: (representation, location text, reason in the error).
+BAD_LOCATIONS = [
+    ("xya", "", "no centre point"),
+    ("xya", CENTRE + "x_300,y_20", "outside"),
+    ("xya", CENTRE + "x_224,y_20", "outside"),
+    ("xya", CENTRE + "x_10,y_-1", "outside"),
+    ("xya", CENTRE + "x_\u0661\u0660,y_20", "malformed centre point"),  # Arabic-Indic digits
+    ("xya", CENTRE + "x_10,y_\uff12\uff10", "malformed centre point"),  # full-width digits
+    ("xya", CENTRE + "x_10,y_20abc", "malformed centre point"),
+    ("xya", CENTRE + "x_10,y_20.5", "malformed centre point"),
+    ("xya", CENTRE + "x_10.5,y_20", "malformed centre point"),
+    ("xya", CENTRE + "x_10,y_20 " + CENTRE + "x_50,y_60", "more than one centre point"),
+    ("xywha", CENTRE + "x_10,y_20", "no width and height"),
+    ("xywha", SIZE + "w_30,h_8", "no centre point"),
+    ("xywha", CENTRE + "x_10,y_20 " + SIZE + "w_0,h_8", "out of range"),
+    ("xywha", CENTRE + "x_10,y_20 " + SIZE + "w_30,h_449", "out of range"),
+    ("xywha", CENTRE + "x_10,y_20 " + SIZE + "w_-3,h_8", "out of range"),
+    ("xywha", CENTRE + "x_10,y_20 " + SIZE + "w_30,h_8px", "malformed width and height"),
+    ("xywha", CENTRE + "x_10,y_20 " + SIZE + "w_\u0663,h_8", "malformed width and height"),
+    ("xywha", CENTRE + "x_10,y_20 " + SIZE + "w_30,h_8 " + SIZE + "w_31,h_8", "more than one width and height"),
+    ("xywha", CENTRE + "x_-1,y_20 " + SIZE + "w_30,h_8", "outside"),
+    ("tlbra", "", "no bounding box"),
+    ("tlbra", BOX + "x_15,y_10,x_5,y_30", "wrong order"),
+    ("tlbra", BOX + "x_5,y_30,x_15,y_10", "wrong order"),
+    ("tlbra", BOX + "x_-300,y_10,x_15,y_30", "far outside"),
+    ("tlbra", BOX + "x_5,y_10,x_15,y_449", "far outside"),
+    ("tlbra", BOX + "x_-20,y_10,x_-2,y_30", "outside the 224 image"),  # the box's middle is left of it
+    ("tlbra", BOX + "x_5,y_10,x_15", "malformed bounding box"),
+    ("tlbra", BOX + "x_5,y_10,x_15,y_30_", "malformed bounding box"),
+    ("tlbra", BOX + "x_5,y_1\u0660,x_15,y_30", "malformed bounding box"),
+    ("tlbra", BOX + "x_5,y_10,x_15,y_30 " + BOX + "x_5,y_10,x_15,y_31", "more than one bounding box"),
+    ("tlbra_patch", "", "no patch-index box"),
+    ("tlbra_patch", BOX + "<patch_index_0033><patch_index_1024>", "above 1023"),
+    ("tlbra_patch", BOX + "<patch_index_0100><patch_index_0033>", "wrong order"),
+    ("tlbra_patch", BOX + "<patch_index_0040><patch_index_0100>", "wrong order"),  # column 8 > column 4
+    ("tlbra_patch", BOX + "<patch_index_033><patch_index_0100>", "malformed patch-index box"),
+    ("tlbra_patch", BOX + "<patch_index_\u0660033><patch_index_0100>", "malformed patch-index box"),
+    ("tlbra_patch", GOOD["tlbra_patch"] + " " + GOOD["tlbra_patch"], "more than one patch-index box"),
+]
+BAD_ANGLES = [  # (angle text, angle_code, reason)
+    ("", True, "no rotation angle"),
+    (ANGLE + "a_256", True, "outside"),
+    (ANGLE + "a_-1", True, "outside"),
+    (ANGLE + "a_1.5", True, "outside"),
+    (ANGLE + "a_12.0", True, "outside"),
+    (ANGLE + "a_12abc", True, "malformed rotation angle"),
+    (ANGLE + "a_12.", True, "malformed rotation angle"),  # a number ends at a non-word, non-dot character
+    (ANGLE + "a_1\u0662", True, "malformed rotation angle"),
+    (ANGLE + "a_12 " + ANGLE + "a_90", True, "more than one rotation angle"),
+    (ANGLE + "a_12 " + ANGLE + "a_12", True, "more than one rotation angle"),
+    (ANGLE + "a_1.58", False, "outside"),  # > pi/2
+    (ANGLE + "a_-2", False, "outside"),
+    (ANGLE + "a_0.5rad", False, "malformed rotation angle"),
+    (ANGLE + "a_0.5 " + ANGLE + "a_-0.5", False, "more than one rotation angle"),
+]
+
+
+@pytest.mark.parametrize("representation, location, reason", BAD_LOCATIONS)
+def test_bad_locations_are_clear_failures(representation, location, reason):
+    for angle_code, angle in ((True, ANGLE + "a_12"), (False, ANGLE + "a_0.52")):
+        parsed = grasp_text.parse_grasp(f"{location} {angle}", representation, angle_code)
+        assert not parsed.ok and reason in parsed.error, parsed.error
+        assert np.isnan(parsed.grasp).all()
+
+
+@pytest.mark.parametrize("representation", grasp_text.REPRESENTATIONS)
+@pytest.mark.parametrize("angle, angle_code, reason", BAD_ANGLES)
+def test_bad_angles_are_clear_failures(representation, angle, angle_code, reason):
+    parsed = grasp_text.parse_grasp(f"{GOOD[representation]} {angle}", representation, angle_code)
+    assert not parsed.ok and reason in parsed.error, parsed.error
+    assert np.isnan(parsed.grasp).all()
+
+
+@pytest.mark.parametrize("representation", grasp_text.REPRESENTATIONS)
+def test_good_answers_parse_with_text_around_them(representation):
+    expected = grasp_text.parse_grasp(f"{GOOD[representation]} {ANGLE}a_12", representation)
+    assert expected.ok, expected.error
+    for text in (f"{GOOD[representation]} {ANGLE}a_12  \n", f"{GOOD[representation]} {ANGLE}a_12</s>",
+                 f"{GOOD[representation]} {ANGLE}a_12 </s>", f"Grasp the mug. {GOOD[representation]} {ANGLE}a_12",
+                 f"{ANGLE}a_12 {GOOD[representation]}"):
+        parsed = grasp_text.parse_grasp(text, representation)
+        assert parsed.ok, (text, parsed.error)
+        np.testing.assert_array_equal(parsed.grasp, expected.grasp)
+
+
+def half_up(value):
+    return math.floor(value + 0.5)
+
+
+@pytest.mark.parametrize("representation", grasp_text.REPRESENTATIONS)
+@pytest.mark.parametrize("angle_code", [True, False])
+def test_every_formatted_grasp_parses_at_the_edges(representation, angle_code):
+    rng = np.random.default_rng(7)
+    size = 224
+    edges = np.array([0.0, -0.0, -1e-12, -0.5, -3.0, 0.49999, 0.5, 222.5, 223.0, 223.4999, 223.5, 223.75,
+                      223.999999, 224.0, 224.5, 230.0])
+    n = 3000
+    grasps = np.c_[rng.choice(edges, (n, 2)), rng.choice([0.0, 0.2, 0.5, 1.49, 1.5, 447.5, 448.6, 1000.0], (n, 2)),
+                   rng.choice([-np.pi / 2, 0.0, np.pi / 2 - 1e-9, np.pi / 4, 1.0, -0.3], n)]
+    grasps[n // 2:, :2] = rng.uniform(-2, 226, (n - n // 2, 2))  # and anywhere near the image
+    grasps[n // 2:, 2:4] = rng.uniform(0, 500, (n - n // 2, 2))
+    for grasp in grasps:
+        text = grasp_text.format_grasp(grasp, representation, angle_code, size)
+        parsed = grasp_text.parse_grasp(text, representation, angle_code, size)
+        assert parsed.ok, (grasp.tolist(), text, parsed.error)
+        inside = np.clip(grasp[:2], 0, size - 1)
+        if representation in ("xya", "xywha"):  # a centre in [223.5, 224) is written x_223, not x_224
+            assert parsed.grasp[:2].tolist() == [min(max(half_up(v), 0), size - 1) for v in grasp[:2]]
+        if representation == "xywha":
+            assert parsed.grasp[2:4].tolist() == [min(max(half_up(v), 1), 2 * size) for v in grasp[2:4]]
+        if representation == "tlbra":
+            box = grasp_text.bounding_box(np.r_[inside, grasp[2:]])
+            if box.min() > -size and box.max() < 2 * size:  # corners not clamped: the middle is kept
+                assert np.abs(parsed.grasp[:2] - inside).max() <= 0.5 + 1e-9, (grasp.tolist(), text)
+
+
+def test_patch_box_of_no_width_on_a_grid_line_parses():
+    grasp = np.array([49.0, 98.0, 0.0, 0.0, 0.0])  # 49 and 98 px are grid lines of the 7 px cells
+    text = grasp_text.format_grasp(grasp, "tlbra_patch")
+    assert "<patch_index_0455><patch_index_0455>" in text  # row 14, column 7
+    assert grasp_text.parse_grasp(text, "tlbra_patch").ok
+
+
+@pytest.mark.parametrize("representation", grasp_text.REPRESENTATIONS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_format_refuses_non_finite_grasps(representation, bad):
+    for field in (0, 1, 4) if representation == "xya" else range(5):
+        grasp = np.array([100.0, 50.0, 30.0, 10.0, 0.2])
+        grasp[field] = bad
+        with pytest.raises(ValueError, match=r"cannot write grasp \[.*(nan|inf).*\] as " + representation):
+            grasp_text.format_grasp(grasp, representation)
+    with pytest.raises(ValueError, match="not finite"):
+        grasp_text.format_angle(bad)
+
+
+def test_xya_writes_what_it_parses_back():
+    text = "Grasp center point coordinates: x_223,y_0 Grasp rotation angle in radians: a_255"
     parsed = grasp_text.parse_grasp(text)
-    assert not parsed.ok and reason in parsed.error and np.isnan(parsed.grasp).all()
+    assert np.isnan(parsed.grasp[2:4]).all()  # XYA says nothing of w, h: not needed to write it again
+    assert grasp_text.format_grasp(parsed.grasp) == text
 
 
 def test_parse_never_raises_and_rejects_unknown_representation():
