@@ -5,6 +5,7 @@ import pathlib
 
 import jax
 import jax.numpy as jnp
+import ml_dtypes
 import numpy as np
 import pytest
 from flax import nnx
@@ -126,3 +127,24 @@ def test_vocabulary_growth_from_source_pieces():
         weights.grow_vocabulary(model, 102, source_ids=[[500]])
     with pytest.raises(ValueError, match="needs 1 non-empty"):
         weights.grow_vocabulary(model, 102, source_ids=[[1], [2]])
+
+
+@pytest.mark.parametrize("dtype,max_shard_bytes", [(ml_dtypes.bfloat16, None), (np.float16, 20_000)])
+def test_half_precision_checkpoints_import_as_float32(tmp_path, dtype, max_shard_bytes):
+    """transformers' hub checkpoints are often bf16 or fp16; they import exactly (as float32)."""
+    model = weights.load_pretrained(FIXTURE)
+    weights.save_pretrained(model, tmp_path, max_shard_bytes=max_shard_bytes)
+    halves = {}
+    for file in sorted(tmp_path.glob("*.safetensors")):
+        tensors = load_file(file)
+        if file.name == "model.safetensors":  # the tied head, stored as transformers does
+            tensors[weights.TIED_HEAD] = tensors[weights.EMBED_TOKENS]
+        halves.update({key: value.astype(dtype) for key, value in tensors.items()})
+        save_file({key: halves[key] for key in tensors}, str(file))
+    read = weights.read_tensors(tmp_path)
+    assert {value.dtype for value in read.values()} == {np.dtype(np.float32)}
+    back = params_of(weights.load_pretrained(tmp_path))
+    for path, value in params_of(model).items():
+        key = weights.hf_key(tuple(path.split(".")))
+        expected = weights.from_hf(tuple(path.split(".")), halves[key].astype(np.float32))
+        np.testing.assert_array_equal(back[path], expected, err_msg=path)

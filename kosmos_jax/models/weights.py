@@ -4,6 +4,7 @@ A folder holds `config.json` and either `model.safetensors` or shards listed in
 `model.safetensors.index.json`. The key of every parameter is its nnx path with the leaf renamed
 (kernel/scale/embedding -> weight); Linear kernels are transposed ((out, in) in PyTorch, (in, out)
 here) and the patch-conv kernel permuted ((out, in, kh, kw) there, (kh, kw, in, out) here).
+Checkpoints stored in bfloat16 or float16 import as float32 parameters.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
+import ml_dtypes  # registers bfloat16 with numpy: safetensors' numpy reader needs it for bf16 files
 import numpy as np
 from flax import nnx
 from safetensors import safe_open
@@ -69,7 +71,15 @@ def _weight_files(folder: pathlib.Path) -> dict[str, pathlib.Path]:
         return {key: single for key in f.keys()}
 
 
+def _as_float32(tensor: np.ndarray) -> np.ndarray:
+    """Floating tensors of any width (bfloat16, float16, float64) as float32; others unchanged."""
+    if np.issubdtype(tensor.dtype, np.floating) or tensor.dtype == ml_dtypes.bfloat16:
+        return tensor.astype(np.float32)
+    return tensor
+
+
 def read_tensors(folder: str | pathlib.Path) -> dict[str, np.ndarray]:
+    """Every tensor of the checkpoint; floating ones as float32."""
     folder = pathlib.Path(folder)
     by_file: dict[pathlib.Path, list[str]] = {}
     for key, file in _weight_files(folder).items():
@@ -80,7 +90,7 @@ def read_tensors(folder: str | pathlib.Path) -> dict[str, np.ndarray]:
             raise FileNotFoundError(f"{file}: shard named in the index is missing")
         with safe_open(file, framework="np") as f:
             for key in keys:
-                tensors[key] = f.get_tensor(key)
+                tensors[key] = _as_float32(f.get_tensor(key))
     return tensors
 
 
