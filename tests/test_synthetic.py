@@ -8,8 +8,12 @@ and part polygons are tested with shapely.
 import filecmp
 import json
 import math
+import os
 import pathlib
 import re
+import socket
+import subprocess
+import sys
 from collections import Counter
 
 import cv2
@@ -406,3 +410,84 @@ def test_read_meta_returns_the_photos_and_names_a_bad_file(dataset, tmp_path):
     (tmp_path / "synthetic_meta.json").write_text("{broken")
     with pytest.raises(ValueError, match="synthetic_meta.json: not valid JSON"):
         synthetic.read_meta(tmp_path)
+
+
+# ---- atomic writing --------------------------------------------------------------------------
+
+
+def snapshot(root):
+    return {rel: (root / rel).read_bytes() for rel in all_files(root)}
+
+
+def stop_at_second_scene(monkeypatch, error):
+    real, calls = synthetic.make_scene, []
+
+    def make_scene(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise error
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(synthetic, "make_scene", make_scene)
+
+
+def test_an_interrupted_first_write_leaves_nothing(tmp_path, monkeypatch):
+    stop_at_second_scene(monkeypatch, KeyboardInterrupt())
+    with pytest.raises(KeyboardInterrupt):
+        synthetic.write_dataset(tmp_path / "out", 3, 0)
+    assert list(tmp_path.iterdir()) == []  # neither the folder nor a hidden partial sibling
+    monkeypatch.undo()
+    synthetic.write_dataset(tmp_path / "out", 3, 0)  # and the next run simply writes it
+    assert synthetic.read_meta(tmp_path / "out").keys() == {"pcd0100", "pcd0101", "pcd0102"}
+
+
+def test_an_interrupted_overwrite_keeps_the_old_set_whole(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    synthetic.write_dataset(out, 2, 1)
+    (out / "notes.txt").write_text("mine")
+    before = snapshot(out)
+    stop_at_second_scene(monkeypatch, RuntimeError("disk full"))
+    with pytest.raises(RuntimeError, match="disk full"):
+        synthetic.write_dataset(out, 3, 0, overwrite=True)
+    assert snapshot(out) == before and [p.name for p in tmp_path.iterdir()] == ["out"]
+    monkeypatch.undo()
+    synthetic.write_dataset(out, 3, 0, overwrite=True)
+    assert json.loads((out / "synthetic_meta.json").read_text())["count"] == 3
+    assert (out / "notes.txt").read_text() == "mine" and [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_a_killed_writers_partial_folder_is_removed_by_the_next_write(tmp_path):
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(finished.stdout)
+    prefix = f".out.partial-{socket.gethostname()}-"
+    dead, live = tmp_path / f"{prefix}{dead_pid}-0a1b2c3d", tmp_path / f"{prefix}{os.getpid()}-4e5f6a7b"
+    for folder in (dead, live):
+        (folder / "01").mkdir(parents=True)
+        (folder / "01" / "pcd0100r.png").write_bytes(b"half")
+    synthetic.write_dataset(tmp_path / "out", 1, 0)
+    assert not dead.exists()
+    assert live.exists()  # a writer still running (here: this process) is left alone
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, "out"])
+
+
+def test_the_written_folder_gets_the_usual_permissions(tmp_path):
+    umask = os.umask(0o022)
+    os.umask(umask)
+    synthetic.write_dataset(tmp_path / "out", 1, 0)
+    assert (tmp_path / "out").stat().st_mode & 0o777 == 0o777 & ~umask
+
+
+def test_partial_dataset_is_recognised_only_when_it_holds_nothing_else(tmp_path):
+    root = tmp_path / "old"
+    synthetic.write_dataset(root, 2, 0)
+    assert not synthetic.is_partial_dataset(root)  # complete
+    (root / "synthetic_meta.json").unlink()  # what an older version stopped mid-write left
+    assert synthetic.is_partial_dataset(root)
+    (root / "processedData" / "z.txt").unlink()
+    assert synthetic.is_partial_dataset(root)
+    (root / "01" / "holiday.jpg").write_bytes(b"")
+    assert not synthetic.is_partial_dataset(root)
+    (root / "01" / "holiday.jpg").unlink()
+    (root / "README").write_text("")
+    assert not synthetic.is_partial_dataset(root)
+    assert not synthetic.is_partial_dataset(tmp_path / "absent")

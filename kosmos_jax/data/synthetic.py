@@ -16,23 +16,34 @@ writes, like the real Cornell set (see ../shared/data/README.md):
 Every object is seen in several photos (about 3.7, as in Cornell) in different poses. The same
 seed gives the same bytes in every file, and photo k does not depend on how many photos follow it.
 
+Writing is atomic: the set is made in a hidden sibling folder (`.DIR.partial-HOST-PID-*`) and
+renamed to DIR when complete, so a stopped run leaves DIR as it was (a killed writer's sibling is
+deleted by the next write). --overwrite replaces only a folder that holds synthetic_meta.json, and
+keeps the files there that the generator does not make.
+
 API: plan(seed, photos) -> which object each photo shows; make_scene(rng, spec, background) ->
 Scene(rgb, depth, positives, negatives, meta, object_mask); write_dataset(out, photos, seed);
-read_meta(root) -> the per-photo metadata. Objects: synthetic_objects; drawing and depth:
-synthetic_render; grasp rectangles: synthetic_grasps.
+read_meta(root) -> the per-photo metadata; is_partial_dataset(root) -> whether a folder is what
+an interrupted write of older versions (straight into DIR) left behind. Objects:
+synthetic_objects; drawing and depth: synthetic_render; grasp rectangles: synthetic_grasps.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import glob
 import json
 import math
+import os
 import pathlib
 import re
 import shutil
+import socket
 import sys
+import tempfile
 import time
+import uuid
 
 import cv2
 import numpy as np
@@ -208,7 +219,12 @@ def write_photo(folder: pathlib.Path, stem: str, scene: Scene) -> None:
     (folder / f"{stem}cneg.txt").write_text(format_rectangles(scene.negatives))
 
 
-def _prepare_out(out: pathlib.Path, overwrite: bool) -> None:
+def _owned(child: pathlib.Path) -> bool:
+    """Whether write_dataset makes this entry of a dataset folder (its other entries are the user's)."""
+    return child.name == META_NAME or (child.is_dir() and bool(re.fullmatch(r"\d\d|processedData", child.name)))
+
+
+def _check_out(out: pathlib.Path, overwrite: bool) -> None:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a directory")
     if out.is_dir() and any(out.iterdir()):
@@ -217,12 +233,63 @@ def _prepare_out(out: pathlib.Path, overwrite: bool) -> None:
         if not (out / META_NAME).is_file():
             raise ValueError(
                 f"refusing to overwrite {out}: it holds no {META_NAME}, so it may not be a synthetic dataset")
-        for child in sorted(out.iterdir()):
-            if child.name == META_NAME:
-                child.unlink()
-            elif child.is_dir() and (re.fullmatch(r"\d\d", child.name) or child.name == "processedData"):
-                shutil.rmtree(child)
-    out.mkdir(parents=True, exist_ok=True)
+
+
+def is_partial_dataset(root) -> bool:
+    """A folder with no metadata that holds nothing but a synthetic set's files: what a run that
+    was stopped while writing straight into it (before writes became atomic) leaves behind."""
+    root = pathlib.Path(root)
+    if not root.is_dir() or (root / META_NAME).exists():
+        return False
+    for child in root.iterdir():
+        if not _owned(child):
+            return False
+        names = ("z.txt", "backgroundMapping.txt") if child.name == "processedData" else None
+        for entry in child.iterdir():
+            expected = entry.name in names if names else re.fullmatch(r"pcd\d{4}(r\.png|d\.tiff|cpos\.txt|cneg\.txt)", entry.name)
+            if not (expected and entry.is_file()):
+                return False
+    return True
+
+
+def _partial_prefix(out: pathlib.Path) -> str:
+    return f".{out.name}.partial-{socket.gethostname()}-"
+
+
+def _remove_stale_partials(out: pathlib.Path) -> None:
+    """Delete the hidden siblings that killed writers of `out` on this machine left behind."""
+    prefix = _partial_prefix(out)
+    for sibling in out.parent.glob(glob.escape(prefix) + "*"):
+        pid = sibling.name[len(prefix):].split("-")[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(sibling, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _swap_in(new: pathlib.Path, out: pathlib.Path) -> None:
+    """Put the finished dataset `new` at `out` by renaming it, so `out` never holds half of one.
+    The user's own files in a replaced `out` (anything write_dataset does not make) move across."""
+    if out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+    if not out.exists():
+        new.rename(out)
+        return
+    old = pathlib.Path(tempfile.mkdtemp(prefix=f".{out.name}.replaced-", dir=out.parent))
+    out.rename(old / out.name)
+    new.rename(out)
+    for child in sorted((old / out.name).iterdir()):
+        if not _owned(child):
+            child.rename(out / child.name)
+    shutil.rmtree(old)
 
 
 def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress: bool = False) -> dict:
@@ -232,7 +299,22 @@ def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     out = pathlib.Path(out)
-    _prepare_out(out, overwrite)
+    _check_out(out, overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_partials(out)
+    partial = out.parent / f"{_partial_prefix(out)}{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    partial.mkdir()  # not mkdtemp: its 0700 mode would become the dataset's
+    try:
+        summary = _write_files(partial, photos, seed, progress)
+        _swap_in(partial, out)
+    finally:  # an error or Ctrl-C: nothing half-made stays behind
+        if partial.exists():
+            shutil.rmtree(partial, ignore_errors=True)
+    return summary
+
+
+def _write_files(out: pathlib.Path, photos: int, seed: int, progress: bool) -> dict:
+    """Every file of the dataset into the (empty) folder `out`, the metadata last."""
     (out / "processedData").mkdir()
     z_lines, mapping_lines, metas = [], [], {}
     spec, background, start = None, None, time.monotonic()
