@@ -7,13 +7,15 @@ reader, and scores the image-centre predictor and the ground-truth-mean oracle w
 cross-validation, image-wise and object-wise, under the `honest` and `paper` protocols and the
 `exact` and `reference` IoU backends; the same on the real Cornell files when they are present
 (../shared/data/cornell, or config.cornell). Prints a table and writes it as JSON to
-OUT/baselines.json.
+OUT/baselines.json; both say how many views had no ground truth left to score against (skipped)
+and how many folds were left with no scored view (dropped from mean +- std).
 """
 
 from __future__ import annotations
 
 import json
 import pathlib
+import shutil
 import sys
 import time
 
@@ -30,11 +32,24 @@ CONFIG = config_flags.DEFINE_config_file("config", str(REPO / "configs" / "demo.
 
 
 def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
-    """The synthetic set under OUT, made once per (photos, seed) and reused after."""
+    """The synthetic set under OUT, made once per (photos, seed) and reused after.
+
+    Writing is atomic, so a folder without synthetic_meta.json is what an interrupted run of an
+    older version left: it is removed (with a message) and written again. Anything else in the
+    way is an error, never deleted."""
     root = out / f"synthetic_{photos}_seed{seed}"
-    if not (root / "synthetic_meta.json").exists():
-        print(f"writing {photos} synthetic photos to {root}", file=sys.stderr)
-        synthetic.write_dataset(root, photos=photos, seed=seed, overwrite=root.exists(), progress=True)
+    if (root / synthetic.META_NAME).exists():
+        return root
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        if not synthetic.is_partial_dataset(root):
+            raise FileExistsError(
+                f"{root} is in the way of the demo's synthetic set: it holds no {synthetic.META_NAME} and "
+                "files the generator does not make; move it away or set --config.out elsewhere")
+        print(f"{root} holds an incomplete synthetic set (no {synthetic.META_NAME}: a run of an older "
+              "version was stopped while writing it); removing it and writing it again", file=sys.stderr)
+        shutil.rmtree(root)
+    print(f"writing {photos} synthetic photos to {root}", file=sys.stderr)
+    synthetic.write_dataset(root, photos=photos, seed=seed, progress=True)
     return root
 
 
@@ -53,7 +68,8 @@ def evaluate_source(name: str, root: pathlib.Path, seed: int, k: int = 5) -> lis
                     rows.append(
                         dict(data=name, photos=len(photos), protocol=protocol, split=scheme, backend=backend,
                              predictor=predictor, mean=round(result.mean, 2), std=round(result.std, 2),
-                             views=result.views, per_fold=[round(v, 2) for v in result.per_fold])
+                             views=result.views, skipped_views=result.skipped_views,
+                             empty_folds=result.empty_folds, per_fold=[round(v, 2) for v in result.per_fold])
                     )
     return rows
 
@@ -70,6 +86,18 @@ def print_table(rows: list[dict]) -> None:
     print("\nrectangle metric (angle <= 30 deg, IoU > 0.25), 5-fold mean +- std in percent; "
           "honest: photo-centre crops, w/h from each ground truth; paper: label-centred augmented crops, "
           "w = widest opening, h = mean jaw (KOSMOS-E's code)")
+    print(skipped_note(rows))
+
+
+def skipped_note(rows: list[dict]) -> str:
+    """Footnote: views not scored (no ground truth left in them) and folds left out of the mean."""
+    counts = {(r["data"], r["protocol"], r["split"]): (r["skipped_views"], r["views"], r["empty_folds"]) for r in rows}
+    parts = [f"{data} {protocol} {split}-wise: {skipped} of {skipped + views} views skipped, {empty} empty folds"
+             for (data, protocol, split), (skipped, views, empty) in sorted(counts.items()) if skipped or empty]
+    if not parts:
+        return "every view had ground truth to score against; no fold was empty"
+    return ("not scored (no ground truth left in the view; a fold with no scored view is left out of "
+            "mean +- std): " + "; ".join(parts))
 
 
 def run(config) -> list[dict]:

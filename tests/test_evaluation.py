@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import demo
+from kosmos_jax.data import cornell, synthetic
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.evaluation import baselines, scoring, views
 
@@ -95,6 +96,31 @@ def test_score_counts_per_fold_and_failures_by_protocol():
     assert paper.per_fold == [100.0] * 5 and paper.mean == 100.0 and paper.std == 0.0
 
 
+def test_views_without_ground_truth_and_empty_folds_are_counted():
+    v = crafted_views()
+    v.mask[[1, 4, 9]] = False  # views 4 and 9 are all of fold 4; view 1 is half of fold 1
+    pred = np.tile([[100.0, 100.0, 0.0]], (10, 1))
+    pred[6] = [150.0, 100.0, 0.0]  # a miss in fold 1
+    result = scoring.score(pred, v, np.arange(10) % 5, "honest")
+    assert result.per_fold == [100.0, 0.0, 100.0, 100.0]  # fold 1 is view 6 alone; fold 4 has nothing
+    assert (result.views, result.skipped_views, result.empty_folds) == (7, 3, 1)
+    assert result.mean == 75.0
+    full = scoring.score(pred, crafted_views(), np.arange(10) % 5, "honest")
+    assert (full.views, full.skipped_views, full.empty_folds) == (10, 0, 0)
+    v.mask[:] = False
+    nothing = scoring.score(pred, v, np.arange(10) % 5, "honest")
+    assert nothing.per_fold == [] and nothing.empty_folds == 5 and math.isnan(nothing.mean)
+
+
+def test_demo_footnote_names_skipped_views_and_empty_folds():
+    row = dict(data="cornell", protocol="paper", split="object", views=7, skipped_views=3, empty_folds=1)
+    clean = dict(row, data="synthetic", skipped_views=0, empty_folds=0)
+    note = demo.skipped_note([row, dict(row, backend="reference"), clean])
+    assert "cornell paper object-wise: 3 of 10 views skipped, 1 empty folds" in note
+    assert "synthetic" not in note
+    assert "no fold was empty" in demo.skipped_note([clean])
+
+
 def test_honest_folds_keep_photos_and_objects_together():
     v = crafted_views()
     v.photo_id = [f"p{i // 2}" for i in range(10)]  # two views per photo
@@ -123,7 +149,32 @@ def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys, monkeypatch):
     oracle = [r for r in rows if r["predictor"] == "gt_mean_oracle" and r["protocol"] == "honest"]
     centre = [r for r in rows if r["predictor"] == "image_centre" and r["protocol"] == "honest"]
     assert min(r["mean"] for r in oracle) > max(r["mean"] for r in centre)
-    assert "image-wise" in capsys.readouterr().out
+    assert all({"skipped_views", "empty_folds"} <= set(r) for r in rows)
+    assert all(r["empty_folds"] == 5 - len(r["per_fold"]) for r in rows)
+    out = capsys.readouterr().out
+    assert "image-wise" in out and demo.skipped_note(rows) in out
+
+
+def test_demo_rewrites_a_stale_partial_set_from_older_versions(tmp_path, capsys):
+    root = tmp_path / "synthetic_2_seed0"
+    synthetic.write_dataset(root, 2, 0)
+    (root / "synthetic_meta.json").unlink()  # an older version was stopped before writing it
+    (root / "01" / "pcd0101r.png").unlink()
+    assert demo.synthetic_source(tmp_path, 2, 0) == root
+    assert "incomplete synthetic set" in capsys.readouterr().err
+    assert synthetic.read_meta(root).keys() == {"pcd0100", "pcd0101"}
+    assert len(cornell.load_photos(root, load_images=False)) == 2
+    assert demo.synthetic_source(tmp_path, 2, 0) == root  # complete now: reused, not written again
+    assert "writing" not in capsys.readouterr().err
+
+
+def test_demo_never_deletes_a_foreign_folder_in_its_way(tmp_path):
+    root = tmp_path / "synthetic_2_seed0"
+    (root / "01").mkdir(parents=True)
+    (root / "01" / "notes.txt").write_text("keep me")
+    with pytest.raises(FileExistsError, match="synthetic_2_seed0 is in the way"):
+        demo.synthetic_source(tmp_path, 2, 0)
+    assert (root / "01" / "notes.txt").read_text() == "keep me"
 
 
 def test_demo_refuses_a_missing_cornell_folder(tmp_path):

@@ -16,17 +16,19 @@ WH_POLICY = {"honest": "per_gt", "paper": "kosmos_e"}
 
 @dataclasses.dataclass
 class FoldScores:
-    per_fold: list[float]  # accuracy in percent, one per fold
+    per_fold: list[float]  # accuracy in percent, one per fold that has a scorable view
     failures: float  # fraction of answers that did not parse (NaN rows), before any substitution
-    views: int
+    views: int  # views scored
+    skipped_views: int = 0  # views with no ground truth left in the crop: nothing to score against
+    empty_folds: int = 0  # folds with no scored view, left out of the mean and std
 
     @property
     def mean(self) -> float:
-        return float(np.mean(self.per_fold))
+        return float(np.mean(self.per_fold)) if self.per_fold else float("nan")
 
     @property
     def std(self) -> float:
-        return float(np.std(self.per_fold))
+        return float(np.std(self.per_fold)) if self.per_fold else float("nan")
 
     def text(self) -> str:
         return f"{self.mean:6.2f} +- {self.std:5.2f}"
@@ -58,11 +60,13 @@ def view_folds(views: Views, scheme: str, protocol: str, object_of: dict | None 
 
 
 def score(pred, views: Views, folds, protocol: str, backend: str = "exact", k: int = 5) -> FoldScores:
-    """Rectangle-metric accuracy per fold of `pred` [V, 3] on `views` (views without any ground
-    truth left in the crop are skipped: nothing can be scored against them)."""
+    """Rectangle-metric accuracy per fold of `pred` [V, 3] on `views`. Views without any ground
+    truth left in the crop cannot be scored: they are skipped, and a fold left with no view is
+    dropped from the mean; both are counted in the result."""
     pred, failures = resolve_failures(pred, views, protocol)
     success = np.asarray(grasp_success(pred, views.grasps, views.mask, backend=backend, wh_policy=WH_POLICY[protocol]))
-    scorable = views.mask.any(axis=1)
+    scorable = np.asarray(views.mask).any(axis=1)
     folds = np.asarray(folds)
     per_fold = [100.0 * float(success[(folds == f) & scorable].mean()) for f in range(k) if ((folds == f) & scorable).any()]
-    return FoldScores(per_fold, failures, int(scorable.sum()))
+    return FoldScores(per_fold, failures, int(scorable.sum()), skipped_views=int((~scorable).sum()),
+                      empty_folds=k - len(per_fold))
