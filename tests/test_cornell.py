@@ -198,8 +198,10 @@ def test_real_file_with_a_line_deleted(tmp_path, cornell_root, folder, name, del
     assert f"{broken}, line {incomplete}:" in str(error.value)
 
 
-@pytest.mark.parametrize("folder, name, line, bad", [("01", "pcd0100cpos.txt", 7, "abc"), ("01", "pcd0165cpos.txt", 2, "1_0"),
-                                                     ("01", "pcd0100cneg.txt", 4, "3.2.1"), ("03", "pcd0312cpos.txt", 13, "x")])
+@pytest.mark.parametrize("folder, name, line, bad", [
+    ("01", "pcd0100cpos.txt", 7, "abc"), ("01", "pcd0165cpos.txt", 2, "1_0"),
+    ("01", "pcd0100cneg.txt", 4, "3.2.1"), ("03", "pcd0312cpos.txt", 13, "x"),
+])
 def test_real_file_with_a_non_number_injected(tmp_path, cornell_root, folder, name, line, bad):
     data = (cornell_root / folder / name).read_bytes()
     lines = raw_lines(data)

@@ -228,6 +228,6 @@ def test_xya_writes_what_it_parses_back():
 
 def test_parse_never_raises_and_rejects_unknown_representation():
     assert not grasp_text.parse_grasp(None).ok
-    assert not grasp_text.parse_grasp("Grasp bounding box: x_50,y_50,x_10,y_10 Grasp rotation angle in radians: a_1", "tlbra").ok
+    assert not grasp_text.parse_grasp(BOX + "x_50,y_50,x_10,y_10 " + ANGLE + "a_1", "tlbra").ok
     with pytest.raises(ValueError, match="representation"):
         grasp_text.format_grasp([1, 2, 3, 4, 0], "xyz")

@@ -60,6 +60,7 @@ PHOTOS_PER_OBJECT = ((1, 2, 3, 4, 5), (0.05, 0.05, 0.1, 0.75, 0.05))  # mean 3.7
 POSITIVES = ((2, 3, 4, 5, 6, 7), (0.05, 0.2, 0.3, 0.2, 0.15, 0.1))
 NEGATIVES = ((0, 1, 2, 3, 4), (0.03, 0.07, 0.2, 0.6, 0.1))
 META_NAME = "synthetic_meta.json"
+PHOTO_FILE = r"pcd\d{4}(r\.png|d\.tiff|cpos\.txt|cneg\.txt)"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -244,10 +245,9 @@ def is_partial_dataset(root) -> bool:
     for child in root.iterdir():
         if not _owned(child):
             return False
-        names = ("z.txt", "backgroundMapping.txt") if child.name == "processedData" else None
+        pattern = r"z\.txt|backgroundMapping\.txt" if child.name == "processedData" else PHOTO_FILE
         for entry in child.iterdir():
-            expected = entry.name in names if names else re.fullmatch(r"pcd\d{4}(r\.png|d\.tiff|cpos\.txt|cneg\.txt)", entry.name)
-            if not (expected and entry.is_file()):
+            if not (re.fullmatch(pattern, entry.name) and entry.is_file()):
                 return False
     return True
 
