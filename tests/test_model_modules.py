@@ -1,6 +1,8 @@
 """The model's structure: sizes, parameter count, logical axes, init switches, dtype policy."""
 
+import json
 import math
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -172,3 +174,24 @@ def test_config_json_round_trip_and_refusals():
     bad["text_config"]["activation_function"] = "relu"
     with pytest.raises(ValueError, match="x/config.json.*relu"):
         config_lib.Kosmos2Config.from_hf_dict(bad, source="x/config.json")
+
+
+def test_vision_attention_dropout_follows_the_config_in_training_mode_only(tmp_path):
+    config = json.loads((FIXTURE / "config.json").read_text())
+    assert config["vision_config"]["attention_dropout"] == 0.1  # transformers' test config
+    config["vision_config"]["attention_dropout"] = 0.0
+    for name in ("config.json", "model.safetensors"):
+        shutil.copy(FIXTURE / name, tmp_path / name)
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    pixels = tiny_inputs()[3]
+    run = nnx.jit(lambda model, pixels: model.vision_model(pixels))
+
+    def features(folder, train):
+        model = weights.load_pretrained(folder)
+        model.train() if train else model.eval()
+        return np.asarray(run(model, pixels)), np.asarray(run(model, pixels))
+
+    evaluated, _ = features(FIXTURE, train=False)
+    np.testing.assert_array_equal(features(tmp_path, train=True)[0], evaluated)  # rate 0: no other dropout
+    first, second = features(FIXTURE, train=True)
+    assert not np.allclose(first, evaluated) and not np.allclose(first, second)

@@ -53,10 +53,11 @@ class VisionAttention(nnx.Module):
         self.v_proj = dense(d, d, ("embed", "heads"), rngs, std=in_std, dtype=dtype)
         self.q_proj = dense(d, d, ("embed", "heads"), rngs, std=in_std, dtype=dtype)
         self.out_proj = dense(d, d, ("heads", "embed"), rngs, std=d**-0.5, dtype=dtype)
+        self.attn_dropout = nnx.Dropout(cfg.attention_dropout, rngs=rngs)  # on the weights, as CLIP does
 
     def __call__(self, x):
         q, k, v = (split_heads(p(x), self.num_heads) for p in (self.q_proj, self.k_proj, self.v_proj))
-        out = dot_product_attention(q, k, v, mask=None)
+        out = dot_product_attention(q, k, v, mask=None, dropout=self.attn_dropout)
         return self.out_proj(out.reshape(*out.shape[:2], -1))
 
 
