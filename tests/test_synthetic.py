@@ -491,3 +491,30 @@ def test_partial_dataset_is_recognised_only_when_it_holds_nothing_else(tmp_path)
     (root / "README").write_text("")
     assert not synthetic.is_partial_dataset(root)
     assert not synthetic.is_partial_dataset(tmp_path / "absent")
+
+
+def test_colour_words_name_every_large_painted_area():
+    """A palette colour covering a fifth of an object's top view (a part, or a decal painted over
+    it) is among its colour words, so a colour instruction can refer to what the photo shows."""
+    from kosmos_jax.data.synthetic_objects import CATEGORIES, PALETTE, sample_object
+
+    names_of = {rgb: name for name, rgb in PALETTE.items()}
+    for category in CATEGORIES:
+        for seed in range(12):
+            spec = sample_object(np.random.default_rng(seed), category, 0)
+            outline = Polygon(spec.parts[0].shell).buffer(0)
+            for part in spec.parts[1:]:
+                outline = outline.union(Polygon(part.shell).buffer(0))
+            visible = {}
+            for part in spec.parts:
+                area = Polygon(part.shell).buffer(0).area
+                visible[part.colour] = visible.get(part.colour, 0.0) + area
+            for decal in spec.decals:  # paint replaces the colour under it
+                area = Polygon(decal.shell).buffer(0).intersection(outline).area
+                visible[decal.colour] = visible.get(decal.colour, 0.0) + area
+                under = [p.colour for p in spec.parts if Polygon(p.shell).buffer(0).intersects(Polygon(decal.shell))]
+                if under:
+                    visible[under[0]] -= area
+            for colour, area in visible.items():
+                if colour in names_of and area >= 0.2 * outline.area:
+                    assert names_of[colour] in spec.colours, (category, seed, names_of[colour], spec.colours)

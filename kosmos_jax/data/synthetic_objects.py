@@ -186,9 +186,10 @@ def build_bottle(rng):
                      True, spine=segment(xb + 8, 0, xn - 6, 0, 5), jaw_px=(10, 14), shiny=True)
     cap = PartShape("cap", rect(xn - 1, xn + cap_len, -neck_hw - 1.5, neck_hw + 1.5), rgb(cap_colour),
                     neck_hw * METRES_PER_PIXEL + 0.012, True)
-    label = Decal(rect(x0 + body_len * 0.25, x0 + body_len * 0.75, -body_hw, body_hw),
-                  rgb(pick(rng, ["white", "yellow", "red", "beige"])))
-    return dict(category="Bottle", name="bottle", colours=(colour, cap_colour),
+    label_colour = pick(rng, ["white", "yellow", "red", "beige"])
+    label = Decal(rect(x0 + body_len * 0.25, x0 + body_len * 0.75, -body_hw, body_hw), rgb(label_colour))
+    # the label covers half the body: a colour the object visibly has
+    return dict(category="Bottle", name="bottle", colours=tuple(dict.fromkeys((colour, label_colour, cap_colour))),
                 shape_words=("cylindrical", "elongated"), shape_phrase="cylindrical object with a narrow neck",
                 purpose="holding and pouring liquids",
                 strategy="It is cylindrical with a narrow neck and a cap. Grasping the middle of the body "
@@ -216,10 +217,10 @@ def build_box(rng):
     length, half_w = rng.uniform(75, 120), rng.uniform(17, 28)
     body = PartShape("body", rect(-length / 2, length / 2, -half_w, half_w), rgb(colour), rng.uniform(0.04, 0.08),
                      False, spine=segment(-length * 0.3, 0, length * 0.3, 0), jaw_px=(14, 25))
-    stripe = Decal(rect(-length / 2, length / 2, -half_w * 0.3, half_w * 0.25),
-                   rgb(pick(rng, ["white", "yellow", "blue", "green"])))
+    stripe_colour = pick(rng, ["white", "yellow", "blue", "green"])
+    stripe = Decal(rect(-length / 2, length / 2, -half_w * 0.3, half_w * 0.25), rgb(stripe_colour))
     logo = Decal(ellipse(length * 0.2, 0, half_w * 0.5, half_w * 0.5), rgb(pick(rng, ["red", "black", "purple"])))
-    return dict(category="Box", name="box", colours=(colour,), shape_words=("rectangular", "flat"),
+    return dict(category="Box", name="box", colours=tuple(dict.fromkeys((colour, stripe_colour))), shape_words=("rectangular", "flat"),
                 shape_phrase="rectangular and flat object", purpose="storing and packaging food or goods",
                 strategy="It is rectangular with flat sides. Grasping across its shorter side ensures "
                 "stability. The gripper should be perpendicular to the box's longest side.",
