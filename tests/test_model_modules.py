@@ -13,8 +13,8 @@ from flax import nnx
 import pathlib
 
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models import sharding, weights
-from kosmos_jax.models.decoder import TextBlock
+from kosmos_jax.models import decode, sharding, weights
+from kosmos_jax.models.decoder import TextBlock, init_cache
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, build, forward, param_count
 from kosmos_jax.models.summary import summarize
 
@@ -195,3 +195,46 @@ def test_vision_attention_dropout_follows_the_config_in_training_mode_only(tmp_p
     np.testing.assert_array_equal(features(tmp_path, train=True)[0], evaluated)  # rate 0: no other dropout
     first, second = features(FIXTURE, train=True)
     assert not np.allclose(first, evaluated) and not np.allclose(first, second)
+
+
+def test_kv_cache_and_connector_output_follow_the_rules_and_every_rule_is_used(monkeypatch):
+    if len(jax.devices()) < 8:
+        pytest.skip("needs 8 (fake) devices")
+    model = weights.load_pretrained(FIXTURE)
+    model.eval()
+    ids, mask, image_mask, pixels = tiny_inputs(batch=4)
+    expected = decode.prefill(model, ids, mask, image_mask, model.image_embeds(pixels), ids.shape[1] + 2)[0]
+    activation_names = set()
+    original = sharding.mesh_axes_for
+
+    def recording(logical, *args, **kwargs):
+        activation_names.update(name for name in logical if name is not None)
+        return original(logical, *args, **kwargs)
+
+    monkeypatch.setattr(sharding, "mesh_axes_for", recording)
+    mesh = jax.make_mesh((2, 2, 2), sharding.MESH_AXES, axis_types=(jax.sharding.AxisType.Auto,) * 3)
+    graphdef, state = nnx.split(model)
+    state = jax.device_put(state, sharding.param_shardings(state, mesh))
+
+    @jax.jit
+    def embeds_and_prefill(state, ids, mask, image_mask, pixels):
+        model = nnx.merge(graphdef, state)
+        embeds = model.image_embeds(pixels)
+        logits, cache, _ = decode.prefill(model, ids, mask, image_mask, embeds, ids.shape[1] + 2)
+        return embeds, logits, cache
+
+    with jax.set_mesh(mesh):
+        embeds, logits, cache = embeds_and_prefill(state, ids, mask, image_mask, pixels)
+        fresh = jax.jit(lambda: init_cache(model.config.text, 4, 8))()
+    def placed(array, *spec):
+        return array.sharding.is_equivalent_to(jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(*spec)), array.ndim)
+
+    batch = ("data", "fsdp")
+    assert placed(embeds, batch, None, None)
+    for array in cache["k"] + cache["v"] + fresh["k"] + fresh["v"]:  # [B, slots, heads, head_dim]
+        assert placed(array, batch, None, "tensor", None)  # heads split as the attention splits them
+    assert placed(fresh["valid"], batch, None)
+    np.testing.assert_allclose(np.asarray(logits), np.asarray(expected), atol=2e-5)
+    param_names = {name for _, var in nnx.to_flat_state(nnx.state(model, nnx.Param))
+                   for name in var.get_metadata()["logical_axes"]}
+    assert {name for name, _ in sharding.LOGICAL_AXIS_RULES} == param_names | activation_names

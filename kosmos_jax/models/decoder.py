@@ -14,7 +14,7 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import TextConfig
-from kosmos_jax.models.layers import LayerNorm, dense, dot_product_attention, gelu_exact, split_heads
+from kosmos_jax.models.layers import HEADS, LayerNorm, dense, dot_product_attention, gelu_exact, split_heads
 from kosmos_jax.models.sharding import constrain, logical
 
 ACT = ("batch", "length", "act_embed")
@@ -42,8 +42,8 @@ class TextAttention(nnx.Module):
         v = split_heads(self.v_proj(kv_input), self.num_heads)
         if layer_cache is not None:
             k_cache, v_cache = layer_cache
-            k = jax.lax.dynamic_update_slice(k_cache, k.astype(k_cache.dtype), (0, index, 0, 0))
-            v = jax.lax.dynamic_update_slice(v_cache, v.astype(v_cache.dtype), (0, index, 0, 0))
+            k = constrain(jax.lax.dynamic_update_slice(k_cache, k.astype(k_cache.dtype), (0, index, 0, 0)), HEADS)
+            v = constrain(jax.lax.dynamic_update_slice(v_cache, v.astype(v_cache.dtype), (0, index, 0, 0)), HEADS)
             layer_cache = (k, v)
         out = dot_product_attention(q, k, v, mask, self.attn_dropout)
         out = out.reshape(*out.shape[:2], -1)
@@ -179,8 +179,8 @@ def init_cache(cfg: TextConfig, batch: int, max_len: int, dtype=jnp.float32) -> 
     head_dim = cfg.embed_dim // cfg.attention_heads
     shape = (batch, max_len, cfg.attention_heads, head_dim)
     return {
-        "k": [jnp.zeros(shape, dtype) for _ in range(cfg.layers)],
-        "v": [jnp.zeros(shape, dtype) for _ in range(cfg.layers)],
-        "valid": jnp.zeros((batch, max_len), bool),
+        "k": [constrain(jnp.zeros(shape, dtype), HEADS) for _ in range(cfg.layers)],
+        "v": [constrain(jnp.zeros(shape, dtype), HEADS) for _ in range(cfg.layers)],
+        "valid": constrain(jnp.zeros((batch, max_len), bool), ("batch", "length")),
         "index": jnp.zeros((), jnp.int32),
     }

@@ -13,6 +13,8 @@ from flax import nnx
 
 from kosmos_jax.models.sharding import constrain, logical
 
+HEADS = ("batch", "length", "act_heads", "kv")  # [B, T, H, Dh]: attention outputs and the KV cache
+
 
 def dense(in_features: int, out_features: int, axes: tuple[str, str], rngs: nnx.Rngs, *, std: float,
           dtype=jnp.float32, use_bias: bool = True) -> nnx.Linear:
@@ -67,4 +69,4 @@ def dot_product_attention(q, k, v, mask, dropout: nnx.Dropout | None = None):
     if dropout is not None:
         weights = dropout(weights)
     out = jnp.einsum("bhts,bhsd->bhtd", weights.astype(v.dtype), v).transpose(0, 2, 1, 3)
-    return constrain(out, ("batch", "length", "act_heads", None))
+    return constrain(out, HEADS)

@@ -21,10 +21,9 @@ LOGICAL_AXIS_RULES: tuple[tuple[str, str | tuple[str, ...] | None], ...] = (
     ("batch", ("data", "fsdp")),  # activations: batch over data-parallel and fsdp devices
     ("length", None),
     ("embed", "fsdp"),  # parameters: model width sharded fully (ZeRO-3 style)
-    ("vision_embed", "fsdp"),
     ("mlp", "tensor"),
     ("heads", "tensor"),  # q/k/v output features and out_proj input features
-    ("kv", None),
+    ("kv", None),  # per-head features of attention outputs and the KV cache
     ("vocab", "tensor"),
     ("norm", None),  # LayerNorm scales and biases: small, replicated
     ("patch", None),  # patch-conv kernel height, width, channels
