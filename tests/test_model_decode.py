@@ -38,6 +38,46 @@ def test_cached_and_uncached_decoding_agree(setup):
     np.testing.assert_allclose(np.asarray(logits[:, ids.shape[1] - 1:]), np.asarray(cached_logits), atol=1e-5)
 
 
+class EosFirstOnRowZero(decode.NoConstraint):
+    """Row 0 must end at once; the other rows may not end."""
+
+    def __init__(self, eos_id):
+        self.eos_id = eos_id
+
+    def allowed(self, state, vocab_size, remaining):
+        eos = jnp.arange(vocab_size) == self.eos_id
+        return jnp.where((jnp.arange(state.shape[0]) == 0)[:, None], eos, ~eos)
+
+
+def test_cached_and_uncached_decoding_agree_after_an_eos(setup):
+    """Padding after a row's EOS is masked the same way with and without the cache."""
+    model, _, args = setup
+    constraint = EosFirstOnRowZero(model.config.text.eos_token_id)
+    cached, cached_logits = decode.generate(model, *args, max_new_tokens=NEW, constraint=constraint, return_logits=True)
+    plain, plain_logits = decode.generate(model, *args, max_new_tokens=NEW, constraint=constraint, use_cache=False,
+                                          return_logits=True)
+    assert cached[0, 0] == model.config.text.eos_token_id and (cached[0, 1:] == model.config.text.pad_token_id).all()
+    np.testing.assert_array_equal(np.asarray(cached), np.asarray(plain))
+    np.testing.assert_allclose(np.asarray(cached_logits), np.asarray(plain_logits), atol=1e-5)
+    # row 0's logits two steps after its EOS: prompt + EOS seen, the padding token at the padding position
+    ids, mask, image_mask, embeds = (a[:1] for a in args)
+    cfg = model.config.text
+    tail = jnp.asarray([[cfg.eos_token_id, cfg.pad_token_id]], ids.dtype)
+    alone = forward(model, jnp.concatenate([ids, tail], 1), jnp.concatenate([mask, jnp.asarray([[True, False]])], 1),
+                    jnp.concatenate([image_mask, jnp.zeros((1, 2), bool)], 1), image_embeds=embeds)
+    np.testing.assert_allclose(np.asarray(cached_logits[0, 2]), np.asarray(alone[0, -1]), atol=1e-5)
+
+
+def test_too_few_new_tokens_for_the_constraint_are_refused(setup):
+    model, _, args = setup
+
+    class LongAnswers(decode.NoConstraint):
+        min_tokens = NEW + 1
+
+    with pytest.raises(ValueError, match=f"max_new_tokens={NEW} is too few.*{NEW + 1} tokens"):
+        decode.generate(model, *args, max_new_tokens=NEW, constraint=LongAnswers())
+
+
 def test_greedy_tokens_match_transformers_generate(setup):
     model, ref, args = setup
     tokens = decode.generate(model, *args, max_new_tokens=NEW)
@@ -61,7 +101,7 @@ def test_rows_stop_at_eos_and_then_emit_padding(setup):
     cfg = model.config.text
 
     class ForceEos(decode.NoConstraint):
-        def allowed(self, state, vocab_size):
+        def allowed(self, state, vocab_size, remaining):
             return jnp.zeros((state.shape[0], vocab_size), bool).at[:, cfg.eos_token_id].set(True)
 
     tokens = np.asarray(decode.generate(model, *args, max_new_tokens=3, constraint=ForceEos()))

@@ -6,7 +6,9 @@ exactly as it would alone. (transformers' `generate` instead adds the padding le
 positions of generated tokens; see tests/test_model_decode.py.)
 
 A `constraint` (kosmos_jax.models.grammar.TokenConstraint) restricts every step to the tokens its
-automaton allows; finished rows then emit the pad id.
+automaton allows, told how many tokens the row may still emit (this one included) so that it can
+keep only tokens after which an answer still fits. After its EOS a row emits the pad id, and those
+pad tokens are padding in both paths: never attended to, at the padding position.
 """
 
 from __future__ import annotations
@@ -25,10 +27,13 @@ from kosmos_jax.models.kosmos2 import Kosmos2
 class NoConstraint:
     """Every token allowed; the interface a grammar constraint implements."""
 
+    min_tokens = 0  # the fewest new tokens (EOS included) a complete answer takes
+
     def init(self, batch: int) -> Any:
         return jnp.zeros((batch,), jnp.int32)
 
-    def allowed(self, state, vocab_size: int) -> jax.Array:
+    def allowed(self, state, vocab_size: int, remaining) -> jax.Array:
+        """[B, V] bool; `remaining` (int32 scalar): tokens the row may still emit, this one included."""
         return jnp.ones((state.shape[0], vocab_size), bool)
 
     def advance(self, state, tokens):
@@ -38,8 +43,8 @@ class NoConstraint:
         return jnp.zeros(state.shape, bool)
 
 
-def _pick(logits, constraint, cstate, done, eos_id, pad_id):
-    allowed = constraint.allowed(cstate, logits.shape[-1])
+def _pick(logits, constraint, cstate, done, remaining, eos_id, pad_id):
+    allowed = constraint.allowed(cstate, logits.shape[-1], remaining)
     token = jnp.argmax(jnp.where(allowed, logits, -jnp.inf), axis=-1).astype(jnp.int32)
     token = jnp.where(done, pad_id, token)
     cstate = constraint.advance(cstate, token)
@@ -58,13 +63,15 @@ def prefill(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds,
     return logits, cache, attention_mask.sum(axis=1).astype(jnp.int32)
 
 
-def step(model: Kosmos2, tokens, cache, n_real):
-    """One new token per row at slot cache['index']; returns (logits [B, V], cache, n_real)."""
+def step(model: Kosmos2, tokens, valid, cache, n_real):
+    """One new token per row at slot cache['index']; returns (logits [B, V], cache, n_real).
+
+    valid [B] bool: False for padding after a row's EOS (not attended to, padding position)."""
     cfg = model.config.text
-    real = jnp.ones((tokens.shape[0], 1), bool)
+    real = valid[:, None]
     positions = position_ids(real, cfg.pad_token_id, start=n_real)
     hidden, cache = model.text_model.model(tokens[:, None], real, positions, cache=cache)
-    return model.text_model.logits(hidden)[:, 0], cache, n_real + 1
+    return model.text_model.logits(hidden)[:, 0], cache, n_real + valid.astype(jnp.int32)
 
 
 @functools.partial(nnx.jit, static_argnames=("max_new_tokens", "constraint", "use_cache", "return_logits"))
@@ -72,6 +79,11 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
              constraint=None, use_cache: bool = True, return_logits: bool = False):
     """Greedy tokens [B, max_new_tokens] (pad id after a row's EOS), and per-step logits if asked."""
     constraint = constraint or NoConstraint()
+    if max_new_tokens < 1:
+        raise ValueError(f"max_new_tokens must be positive, got {max_new_tokens}")
+    if max_new_tokens < constraint.min_tokens:
+        raise ValueError(f"max_new_tokens={max_new_tokens} is too few: the shortest answer the constraint "
+                         f"allows takes {constraint.min_tokens} tokens (EOS included)")
     cfg = model.config.text
     batch, prompt_len = input_ids.shape
     cstate = constraint.init(batch)
@@ -79,20 +91,21 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
     if use_cache:
         logits, cache, n_real = prefill(model, input_ids, attention_mask, image_mask, image_embeds,
                                         prompt_len + max_new_tokens)
-        token, cstate, done = _pick(logits, constraint, cstate, done, cfg.eos_token_id, cfg.pad_token_id)
+        token, cstate, done = _pick(logits, constraint, cstate, done, max_new_tokens, cfg.eos_token_id,
+                                    cfg.pad_token_id)
 
-        def body(carry, _):
-            token, cache, n_real, cstate, done = carry
-            logits, cache, n_real = step(model, token, cache, n_real)
-            new, cstate, done = _pick(logits, constraint, cstate, done, cfg.eos_token_id, cfg.pad_token_id)
-            return (new, cache, n_real, cstate, done), (new, logits)
+        def body(carry, i):
+            token, valid, cache, n_real, cstate, done = carry  # valid: `token` came before the row's EOS
+            logits, cache, n_real = step(model, token, valid, cache, n_real)
+            new, cstate, new_done = _pick(logits, constraint, cstate, done, max_new_tokens - i, cfg.eos_token_id,
+                                          cfg.pad_token_id)
+            return (new, ~done, cache, n_real, cstate, new_done), (new, logits)
 
-        _, (tokens, step_logits) = jax.lax.scan(body, (token, cache, n_real, cstate, done), None,
-                                                length=max_new_tokens - 1)
+        carry = (token, jnp.ones((batch,), bool), cache, n_real, cstate, done)
+        _, (tokens, step_logits) = jax.lax.scan(body, carry, jnp.arange(1, max_new_tokens))
         tokens = jnp.concatenate([token[None], tokens], axis=0).T
         all_logits = jnp.concatenate([logits[None], step_logits], axis=0).transpose(1, 0, 2)
     else:
-        total = prompt_len + max_new_tokens
         ids = jnp.concatenate([input_ids, jnp.full((batch, max_new_tokens), cfg.pad_token_id, input_ids.dtype)], 1)
         mask = jnp.concatenate([attention_mask.astype(bool), jnp.zeros((batch, max_new_tokens), bool)], 1)
         image_mask = jnp.concatenate([image_mask.astype(bool), jnp.zeros((batch, max_new_tokens), bool)], 1)
@@ -101,12 +114,12 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
             ids, mask, cstate, done = carry
             logits = model(ids, mask, image_mask, image_embeds=image_embeds)
             logits = jax.lax.dynamic_index_in_dim(logits, prompt_len + i - 1, axis=1, keepdims=False)
-            token, cstate, done_new = _pick(logits, constraint, cstate, done, cfg.eos_token_id, cfg.pad_token_id)
+            token, cstate, done_new = _pick(logits, constraint, cstate, done, max_new_tokens - i, cfg.eos_token_id,
+                                            cfg.pad_token_id)
             ids = jax.lax.dynamic_update_slice(ids, token[:, None].astype(ids.dtype), (0, prompt_len + i))
             mask = jax.lax.dynamic_update_slice(mask, ~done[:, None], (0, prompt_len + i))
             return (ids, mask, cstate, done_new), (token, logits)
 
-        del total
         _, (tokens, all_logits) = jax.lax.scan(body, (ids, mask, cstate, done), jnp.arange(max_new_tokens))
         tokens, all_logits = tokens.T, all_logits.transpose(1, 0, 2)
     return (tokens, all_logits) if return_logits else tokens

@@ -259,7 +259,9 @@ class TokenConstraint:
         (kind,) = self.relation_kinds
         return _relation_holds(kind, lower, upper)
 
-    def allowed(self, cstate, vocab_size: int) -> jnp.ndarray:
+    min_tokens = 0
+
+    def allowed(self, cstate, vocab_size: int, remaining=None) -> jnp.ndarray:
         if vocab_size != self.vocab_size:
             raise ValueError(f"constraint built for {self.vocab_size} tokens, model has {vocab_size}")
         s = cstate["state"]
