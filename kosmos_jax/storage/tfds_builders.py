@@ -30,12 +30,12 @@ from typing import Iterable, Mapping
 import cv2
 import numpy as np
 import tensorflow_datasets as tfds
-from array_record.python import array_record_module
 from etils import epath
 from tensorflow_datasets.core import example_serializer
 
 from kosmos_jax.data import cornell
 from kosmos_jax.storage.samples import ALL_BUILD_KINDS
+from kosmos_jax.storage.shards import ShardWriter
 
 ARRAY_RECORD = "array_record"
 CORNELL_SPLIT = "full"
@@ -96,29 +96,19 @@ class _LocalBuilder(tfds.core.GeneratorBasedBuilder):
 def _write_split(features, template, examples, shard_examples: int) -> tfds.core.SplitInfo:
     """Write (key, example) pairs into array_record shards named by `template`; its SplitInfo."""
     serializer = example_serializer.ExampleSerializer(features.get_serialized_info())
-    parts: list[pathlib.Path] = []
-    lengths: list[int] = []
-    total_bytes = 0
-    writer = None
-    for _, example in examples:
-        if writer is None:
-            parts.append(pathlib.Path(template.data_dir) / f".{template.split}-part{len(parts):05d}")
-            writer = array_record_module.ArrayRecordWriter(str(parts[-1]), "group_size:1")
-            lengths.append(0)
-        data = serializer.serialize_example(features.encode_example(example))
-        writer.write(data)
-        total_bytes += len(data)
-        lengths[-1] += 1
-        if lengths[-1] == shard_examples:
-            writer.close()
-            writer = None
-    if writer is not None:
-        writer.close()
-    if not lengths:
+    shards = ShardWriter(template.data_dir, template.split,
+                         lambda i, n: template.sharded_filepath(shard_index=i, num_shards=n), shard_examples)
+    try:
+        for _, example in examples:
+            shards.write(serializer.serialize_example(features.encode_example(example)))
+    except BaseException:
+        shards.abandon()
+        raise
+    if not len(shards):
         raise ValueError(f"split {template.split!r} has no examples to write")
-    for index, part in enumerate(parts):
-        part.rename(template.sharded_filepath(shard_index=index, num_shards=len(parts)))
-    return tfds.core.SplitInfo(name=template.split, shard_lengths=lengths, num_bytes=total_bytes, filename_template=template)
+    shards.close()
+    return tfds.core.SplitInfo(name=template.split, shard_lengths=shards.lengths, num_bytes=shards.num_bytes,
+                               filename_template=template)
 
 
 class CornellFolder(_LocalBuilder):
