@@ -1,7 +1,9 @@
-"""The build command on a tiny synthetic Cornell-format source: folds, must-hold checks, errors, CLI."""
+"""The build command on a tiny synthetic Cornell-format source: folds, must-hold checks, errors, CLI,
+dataset identity (reuse, overwrite, interrupted builds)."""
 
 import json
 import math
+import pathlib
 import re
 import shutil
 
@@ -11,8 +13,10 @@ import pytest
 
 from kosmos_jax import geometry
 from kosmos_jax.data import splits, synthetic
-from kosmos_jax.data.build import BuildCheckError, BuildConfig, build, check_example, check_separation, main
-from kosmos_jax.storage import pipeline
+from kosmos_jax.data import build as build_module
+from kosmos_jax.data.build import BuildCheckError, BuildConfig, build, build_identity, check_example, check_separation, main
+from kosmos_jax.storage import identity as identity_lib
+from kosmos_jax.storage import pipeline, publish
 from kosmos_jax.storage.tfds_builders import open_splits
 from kosmos_jax.text.formatter import FormatConfig, TextExample, parse_target
 from kosmos_jax.data import cornell
@@ -156,7 +160,7 @@ def test_fold_seed_is_in_the_cli_and_the_dataset_name(source, tmp_path, capsys):
                  "--fold-seed", "2"]) == 0
     stats = json.loads(capsys.readouterr().out)
     assert stats["config"]["seed"] == 3 and stats["config"]["fold_seed"] == 2
-    assert stats["dataset_dir"].split("/")[-2].endswith("-seed3-foldseed2")
+    assert re.search(r"-seed3-foldseed2-[0-9a-f]{12}$", stats["dataset_dir"].split("/")[-2])
     paper = build(BuildConfig(source=str(source), protocol="paper", kinds=("non",)), write=False, tokenize=False)
     assert paper["config"]["fold_seed"] == splits.PAPER_SEED  # the public code's folds by default
 
@@ -258,3 +262,143 @@ def test_real_cornell_with_kosmos_e_annotations(cornell_root, kosmos_e_annotatio
                   write=False, tokenize=False)
     assert stats["config"]["word_source"] == "kosmos_e"
     assert stats["separation"]["shared_objects"] == 0
+
+
+# -- identity, reuse, overwrite, interruption ---------------------------------------------------
+
+def test_identity_covers_every_data_setting_and_input(source, tmp_path):
+    base = BuildConfig(source=str(source), out=str(tmp_path / "a"))
+    key = lambda config: identity_lib.short_hash(build_identity(config))
+    changes = {"protocol": "paper", "split": "object", "fold": 1, "folds": 4, "augmentations": 2, "recipe": "paper",
+               "kinds": ("non",), "seed": 1, "fold_seed": 3, "train_crop": "random", "test_crop": "gt_centroid",
+               "representation": "xywha", "angle_code": False, "individual": False, "loss_on": "instruction",
+               "target_grasp": "first", "numbers": "values", "max_length": 100, "overflow": "truncate",
+               "text_pieces": 500, "unambiguous": False, "batch_size": 4}
+    assert set(changes) | {"source", "out", "annotations", "tokenizer", "overwrite"} == {
+        f.name for f in build_module.dataclasses.fields(BuildConfig)}  # a new field needs a line here
+    keys = [key(build_module.dataclasses.replace(base, **{name: value})) for name, value in changes.items()]
+    assert len(set(keys + [key(base)])) == len(changes) + 1
+    # where and whether to write are not the data
+    assert key(build_module.dataclasses.replace(base, out=str(tmp_path / "b"), overwrite=True)) == key(base)
+    # the fold seed as resolved: honest default 0 is the same folds as an explicit 0
+    assert key(build_module.dataclasses.replace(base, fold_seed=0)) == key(base)
+    # inputs by content: an edited source folder or annotation file is another dataset
+    copy = tmp_path / "copy"
+    shutil.copytree(source, copy)
+    moved = build_module.dataclasses.replace(base, source=str(copy))
+    assert key(moved) != key(base)  # another path
+    before = key(moved)
+    (next(copy.rglob("pcd0103cpos.txt"))).write_text("")
+    assert key(moved) != before
+    annotations = tmp_path / "meta.json"
+    annotations.write_text((source / "synthetic_meta.json").read_text())
+    with_annotations = build_module.dataclasses.replace(base, annotations=str(annotations))
+    before = key(with_annotations)
+    annotations.write_text(annotations.read_text() + " ")
+    assert key(with_annotations) != before
+
+
+def _quick(source, out, **fields):
+    return BuildConfig(source=str(source), out=str(out), kinds=("non", "angle"), fold=0, **fields)
+
+
+def test_builds_differing_only_in_unnamed_settings_land_apart(source, tmp_path):
+    out = tmp_path / "out"
+    builds = {
+        "random": build(_quick(source, out, augmentations=4)),
+        "paper": build(_quick(source, out, augmentations=4, recipe="paper")),
+        "first": build(_quick(source, out, augmentations=4, target_grasp="first")),
+    }
+    folders = {name: stats["dataset_dir"] for name, stats in builds.items()}
+    assert len(set(folders.values())) == 3
+    # the readable part of the names is the same: the identity hash tells them apart
+    assert len({pathlib.Path(f).parent.name.rsplit("-", 1)[0] for f in folders.values()}) == 1
+    for name, stats in builds.items():
+        assert stats["reused"] is False
+        stored = json.loads((pathlib.Path(folders[name]) / "build_stats.json").read_text())
+        assert stored["config"]["recipe"] == ("paper" if name == "paper" else "random")
+        assert stored["config"]["target_grasp"] == ("first" if name == "first" else "random")
+        assert stored["identity"] == stats["identity"]
+    # and the examples differ: each folder holds its own build's data
+    grasp = lambda folder: open_splits(folder)["train"][0]["grasp"]
+    assert not np.array_equal(grasp(folders["random"]), grasp(folders["paper"]))
+
+
+def _files(folder):
+    return {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in pathlib.Path(folder).iterdir()}
+
+
+def test_a_rerun_reuses_and_overwrite_rebuilds(source, tmp_path, monkeypatch, capsys):
+    config = _quick(source, tmp_path / "out")
+    first = build(config)
+    files = _files(first["dataset_dir"])
+
+    def no_photos(_):
+        raise AssertionError("a reused build must not read the photos")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(build_module, "read_photos", no_photos)
+        again = build(config)
+        assert again["reused"] is True
+        assert {k: v for k, v in again.items() if k != "reused"} == {k: v for k, v in first.items() if k != "reused"}
+        assert _files(first["dataset_dir"]) == files  # nothing re-written
+        argv = ["--source", str(source), "--out", str(tmp_path / "out"), "--kinds", "non", "angle"]
+        assert main(argv) == 0
+        assert json.loads(capsys.readouterr().out)["reused"] is True
+        with pytest.raises(AssertionError, match="must not read"):
+            build(build_module.dataclasses.replace(config, overwrite=True))
+    rebuilt = build(build_module.dataclasses.replace(config, overwrite=True))
+    assert rebuilt["reused"] is False and rebuilt["dataset_dir"] == first["dataset_dir"]
+    now = _files(first["dataset_dir"])
+    assert now.keys() == files.keys() and all(now[name] != files[name] for name in files)
+    assert rebuilt["splits"]["train"]["examples"] == first["splits"]["train"]["examples"]
+    assert not list((tmp_path / "out").glob(".staging-*"))
+
+
+def test_a_folder_of_this_name_with_other_contents_is_refused(source, tmp_path):
+    config = _quick(source, tmp_path / "out")
+    folder = pathlib.Path(build(config)["dataset_dir"])
+    stats = json.loads((folder / "build_stats.json").read_text())
+    stats["identity"]["build"]["seed"] = 99
+    (folder / "build_stats.json").write_text(json.dumps(stats))
+    with pytest.raises(FileExistsError, match="another identity.*--overwrite"):
+        build(config)
+    (folder / "build_stats.json").unlink()
+    with pytest.raises(FileExistsError, match="no build_stats.json.*--overwrite"):
+        build(config)
+    assert build(build_module.dataclasses.replace(config, overwrite=True))["reused"] is False
+
+
+def test_an_interrupted_build_is_never_taken_as_complete(source, tmp_path, monkeypatch):
+    config = _quick(source, tmp_path / "out")
+    encode = build_module.layout.encode_example
+    calls = {"n": 0}
+
+    def crashing(*args, **kwargs):  # dies half way through writing the training split
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise KeyboardInterrupt
+        return encode(*args, **kwargs)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(build_module.layout, "encode_example", crashing)
+        with pytest.raises(KeyboardInterrupt):
+            build(config)
+    assert calls["n"] == 40
+    assert not list((tmp_path / "out").rglob("dataset_info.json"))
+    assert not list((tmp_path / "out").glob(".staging-*"))  # a failed build cleans up after itself
+
+    # killed outright: no clean-up runs, the half-written staging folder stays behind
+    calls["n"] = 0
+    with monkeypatch.context() as patch:
+        patch.setattr(build_module.layout, "encode_example", crashing)
+        patch.setattr(publish.shutil, "rmtree", lambda *args, **kwargs: None)
+        with pytest.raises(KeyboardInterrupt):
+            build(config)
+    assert len(list((tmp_path / "out").glob(".staging-*"))) == 1
+    rerun = build(config)
+    assert rerun["reused"] is False  # built afresh, the leftover ignored
+    assert rerun["splits"]["train"]["examples"] > 40  # so the crashes above were in the middle of it
+    train = open_splits(rerun["dataset_dir"])["train"]
+    assert len(train) == rerun["splits"]["train"]["examples"]
+    assert build(config)["reused"] is True

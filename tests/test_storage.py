@@ -1,4 +1,5 @@
-"""TFDS array_record builders (no TensorFlow) and the grain pipeline: round trips, shards, resume."""
+"""TFDS array_record builders (no TensorFlow) and the grain pipeline: round trips, shards, resume,
+atomic writes."""
 
 import json
 import sys
@@ -9,7 +10,8 @@ import pytest
 
 from kosmos_jax.data import cornell
 from kosmos_jax.storage import pipeline
-from kosmos_jax.storage.tfds_builders import CORNELL_SPLIT, build_cornell, open_splits, png_bytes, write_instruct_grasp
+from kosmos_jax.storage.tfds_builders import (CORNELL_SPLIT, build_cornell, dataset_folder, make_config, open_cornell,
+                                              open_splits, png_bytes, write_instruct_grasp)
 
 LENGTH, SIZE = 80, 16
 
@@ -38,11 +40,15 @@ def _record(index: int, answers: int = 2) -> dict:
     }
 
 
+def _config(**fields):
+    return make_config(**{"max_length": LENGTH, "image_size": SIZE, **fields})
+
+
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
     out = tmp_path_factory.mktemp("instruct")
     records = {"train": [_record(i) for i in range(23)], "test": [_record(100 + i, answers=1 + i) for i in range(5)]}
-    path = write_instruct_grasp(records, out, max_length=LENGTH, image_size=SIZE, kinds=("name",), fold=2)
+    path = write_instruct_grasp(records, out, _config(kinds=("name",), fold=2))
     return path, records
 
 
@@ -76,7 +82,7 @@ from kosmos_jax.storage import pipeline
 from kosmos_jax.storage.tfds_builders import open_splits, write_instruct_grasp
 
 records = {"train": [t._record(i) for i in range(6)], "test": [t._record(9)]}
-path = write_instruct_grasp(records, sys.argv[1], max_length=t.LENGTH, image_size=t.SIZE)
+path = write_instruct_grasp(records, sys.argv[1], t._config())
 (batch,) = list(pipeline.make_dataset(open_splits(path)["train"], 6, shuffle=False))
 assert sorted(batch["grasp"][:, 0].astype(int).tolist()) == list(range(6))
 assert not any(m == "tensorflow" or m.startswith("tensorflow.") for m in sys.modules)
@@ -98,7 +104,7 @@ def test_no_tensorflow_needed(tmp_path):
 
 def test_instruct_grasp_round_trip(written):
     path, records = written
-    assert "honest-image-fold2-name-aug1-xya-code-individual-target-digits-len80-seed0-foldseed0" in str(path)
+    assert "/honest-image-fold2-name-aug1-xya-code-individual-target-digits-len80-seed0-foldseed0-" in str(path)
     splits = open_splits(path)
     assert sorted(splits) == ["test", "train"] and len(splits["train"]) == 23 and len(splits["test"]) == 5
     stored = {bytes(r["instruction"]).decode(): r for r in (splits["train"][i] for i in range(23))}
@@ -130,7 +136,7 @@ def test_cornell_folder_round_trip(tmp_path):
     source.mkdir()
     _cornell_folder(source)
     path = build_cornell(source, tmp_path / "tfds")
-    (split,) = open_splits(path).values()
+    split = open_cornell(path)
     assert len(split) == 2
     photos = {p.id: p for p in cornell.load_photos(source)}
     for i in range(2):
@@ -142,7 +148,13 @@ def test_cornell_folder_round_trip(tmp_path):
             assert record["depth"].shape == (0, 0)
         else:
             assert np.array_equal(record["depth"], photo.depth)
-    assert CORNELL_SPLIT in str(sorted(open_splits(path)))
+    assert build_cornell(source, tmp_path / "tfds") == path  # the same files: the same folder
+    # an edited source is another dataset, never the old folder
+    (source / "pcd0101cpos.txt").write_text("10 10\n40 10\n40 20\n10 20\n")
+    edited = build_cornell(source, tmp_path / "tfds")
+    assert edited != path and CORNELL_SPLIT == "full"
+    grasps = {bytes(r["id"]).decode(): len(r["grasps"]) for r in (open_cornell(edited)[i] for i in range(2))}
+    assert grasps == {"pcd0100": 2, "pcd0101": 1}
 
 
 def test_cornell_folder_missing(tmp_path):
@@ -244,9 +256,53 @@ def test_shards_keep_generation_order(tmp_path, monkeypatch):
 
     monkeypatch.setattr(InstructGrasp, "SHARD_EXAMPLES", 10)
     records = {"train": [_record(i) for i in range(23)], "test": [_record(50)]}
-    path = write_instruct_grasp(records, tmp_path, max_length=LENGTH, image_size=SIZE, fold=4)
+    path = write_instruct_grasp(records, tmp_path, _config(fold=4))
     assert len(sorted(path.glob("instruct_grasp-train.array_record-*-of-00003"))) == 3
     train = open_splits(path)["train"]
     assert [int(train[i]["grasp"][0]) for i in range(len(train))] == list(range(23))
     with pytest.raises(ValueError, match="split 'test' has no examples"):
-        write_instruct_grasp({"train": records["train"], "test": []}, tmp_path / "empty", max_length=LENGTH, image_size=SIZE)
+        write_instruct_grasp({"train": records["train"], "test": []}, tmp_path / "empty", _config())
+    assert not (tmp_path / "empty" / "instruct_grasp").exists()  # nothing published
+
+
+def test_an_existing_dataset_is_never_written_over_silently(tmp_path):
+    records = {"train": [_record(i) for i in range(6)], "test": [_record(9)]}
+    config = _config(identity={"recipe": "random"})
+    path = write_instruct_grasp(records, tmp_path, config)
+    assert path == dataset_folder(tmp_path, config)
+    with pytest.raises(FileExistsError, match="already holds this dataset"):
+        write_instruct_grasp(records, tmp_path, config)
+    # the identity is in the name: another recipe (not in the readable part) is another folder
+    other = _config(identity={"recipe": "paper"})
+    assert other.name != config.name and other.name.rsplit("-", 1)[0] == config.name.rsplit("-", 1)[0]
+    assert write_instruct_grasp(records, tmp_path, other) != path
+    # overwrite replaces the old examples, none of them survive
+    fewer = {"train": [_record(i) for i in range(3)], "test": [_record(9)]}
+    assert write_instruct_grasp(fewer, tmp_path, config, overwrite=True) == path
+    assert len(open_splits(path)["train"]) == 3
+    assert not list(tmp_path.glob(".staging-*"))
+
+
+def test_an_interrupted_write_leaves_no_dataset(tmp_path):
+    def failing(count):
+        for i in range(count):
+            if i == 4:
+                raise RuntimeError("interrupted")
+            yield _record(i)
+
+    config = _config()
+    with pytest.raises(RuntimeError, match="interrupted"):
+        write_instruct_grasp({"train": failing(10), "test": [_record(9)]}, tmp_path, config)
+    assert not dataset_folder(tmp_path, config).exists() and not list(tmp_path.glob(".staging-*"))
+
+    def broken_finish(folder):
+        assert (folder / "dataset_info.json").is_file()  # complete but not yet published
+        raise OSError("disk full")
+
+    records = {"train": [_record(i) for i in range(6)], "test": [_record(9)]}
+    with pytest.raises(OSError, match="disk full"):
+        write_instruct_grasp(records, tmp_path, config, finish=broken_finish)
+    assert not dataset_folder(tmp_path, config).exists()
+    # after all that, the dataset is written from scratch
+    path = write_instruct_grasp(records, tmp_path, config, finish=lambda folder: (folder / "extra.txt").write_text("x"))
+    assert len(open_splits(path)["train"]) == 6 and (path / "extra.txt").read_text() == "x"

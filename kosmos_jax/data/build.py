@@ -1,7 +1,7 @@
 """Build an INSTRUCT-GRASP dataset from a Cornell-format folder and print its statistics as JSON.
 
     python -m kosmos_jax.data.build --source DIR --out DIR --protocol honest --split image --fold 0 \
-        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0]
+        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0] [--overwrite]
 
 Steps: read the photos (kosmos_jax.data.cornell) -> words of each object (--annotations: the
 KOSMOS-E file or a synthetic_meta.json; else the folder's synthetic_meta.json; else colour from
@@ -15,6 +15,13 @@ the public code folds them) -> samples of every kind, mosaics drawn within a spl
 (kosmos_jax.storage.samples) -> text examples (kosmos_jax.text.formatter) -> tokenizer (trained on
 the training split's text, or --tokenizer FILE, a KOSMOS-2 SentencePiece model) -> array_record
 files under OUT (kosmos_jax.storage.tfds_builders), the tokenizer and build_stats.json beside them.
+
+The dataset's folder is named by its main settings and a hash of its identity (`build_identity`):
+every setting but --out and --overwrite, and the content of every file read (source folder,
+annotations, tokenizer). A build whose folder already exists reuses it and says so ("reused": true,
+with the stored statistics) without reading the photos; --overwrite rebuilds it. The folder is
+written under a staging name and renamed into place when complete, so an interrupted build never
+leaves a folder that a rerun would take as built.
 
 Checked on every example, else the build fails naming the sample: the target grasp's centre lies
 inside the image; the angle code is in [0, 255]; the target text parses back to the grasp (within
@@ -43,6 +50,7 @@ from kosmos_jax.annotators import synthetic as synthetic_words
 from kosmos_jax.annotators.base import ObjectWords
 from kosmos_jax.data import cornell, splits
 from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, read_annotations
+from kosmos_jax.storage import identity as identity_lib
 from kosmos_jax.storage import samples as sample_stage
 from kosmos_jax.storage import tfds_builders
 from kosmos_jax.storage.views import augment_config, count_views, make_views
@@ -52,6 +60,11 @@ from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
 
 WORD_SOURCES = ("kosmos_e", "synthetic", "rules")
 RULE_KINDS = ("non", "angle", "colour", "position", "multi-colour", "multi-position")
+STATS_FILE = "build_stats.json"
+# BuildConfig fields that say where and whether to write, not what: left out of the identity
+NOT_DATA = ("out", "overwrite")
+# BuildConfig fields naming files read: in the identity by absolute path and content digest
+INPUT_FILES = ("source", "annotations", "tokenizer")
 
 
 class BuildCheckError(AssertionError):
@@ -86,6 +99,7 @@ class BuildConfig:
     text_pieces: int = 1000
     unambiguous: bool = True
     batch_size: int = 8
+    overwrite: bool = False  # rebuild a dataset whose folder exists (else it is reused)
 
     def folds_seed(self) -> int:
         """The seed of the fold assignment actually used."""
@@ -154,8 +168,9 @@ def _rules(source: pathlib.Path, photos) -> tuple[dict, dict]:
     return words, lacking
 
 
-def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict, dict]:
-    """(word source, {photo id: ObjectWords}, {photo id: (kinds its words lack, reason)})."""
+def word_source(source: pathlib.Path, annotations: str | None) -> tuple[str, pathlib.Path | None]:
+    """(which words: "kosmos_e", "synthetic" or "rules", the file they come from), without
+    reading the photos."""
     if annotations is not None:
         path = pathlib.Path(annotations)
         if not path.is_file():
@@ -164,13 +179,19 @@ def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple
             document = json.loads(path.read_text())
         except json.JSONDecodeError as error:
             raise AnnotationMismatchError(f"annotation file {path} is not JSON: {error}") from error
-        if isinstance(document, dict) and "photos" in document:
-            return "synthetic", _synthetic(path, photos), {}
-        return "kosmos_e", _kosmos_e(path, photos), {}
+        return ("synthetic" if isinstance(document, dict) and "photos" in document else "kosmos_e"), path
     meta = source / "synthetic_meta.json"
-    if meta.is_file():
-        return "synthetic", _synthetic(meta, photos), {}
-    return ("rules", *_rules(source, photos))
+    return ("synthetic", meta) if meta.is_file() else ("rules", None)
+
+
+def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict, dict]:
+    """(word source, {photo id: ObjectWords}, {photo id: (kinds its words lack, reason)})."""
+    name, path = word_source(source, annotations)
+    if name == "synthetic":
+        return name, _synthetic(path, photos), {}
+    if name == "kosmos_e":
+        return name, _kosmos_e(path, photos), {}
+    return (name, *_rules(source, photos))
 
 
 # -- splits and views ---------------------------------------------------------------------------
@@ -260,6 +281,42 @@ def check_separation(ids: dict, protocol: str, split: str) -> dict:
     return {"shared_photos": len(photos), "shared_objects": len(objects)}
 
 
+# -- identity and reuse -------------------------------------------------------------------------
+
+def build_identity(config: BuildConfig) -> dict:
+    """Everything that decides the dataset's contents, as JSON data: every BuildConfig field but
+    `NOT_DATA` (a field added later is in by default), the fold seed resolved, the input files by
+    absolute path and content digest, and the text format as resolved."""
+    settings = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name not in NOT_DATA}
+    settings["fold_seed"] = config.folds_seed()
+    for name in INPUT_FILES:
+        settings[name] = identity_lib.input_identity(getattr(config, name))
+    return identity_lib.normalised({"build": settings, "format": dataclasses.asdict(config.format_config())})
+
+
+def dataset_config(config: BuildConfig, single, multi, identity: dict) -> tfds_builders.InstructGraspConfig:
+    return tfds_builders.make_config(
+        identity=identity, protocol=config.protocol, split_by=config.split, fold=config.fold, folds=config.folds,
+        kinds=tuple(single) + tuple(sample_stage.MULTI_PREFIX + k for k in multi),
+        augmentations=config.augmentations, seed=config.seed, fold_seed=config.folds_seed(),
+        representation=config.representation, angle_code=config.angle_code, individual=config.individual,
+        loss_on=config.loss_on, numbers=config.numbers, max_length=config.max_length,
+        image_size=config.format_config().image_size)
+
+
+def reused_stats(dataset_dir: pathlib.Path, identity: dict) -> dict:
+    """The stored statistics of an existing dataset folder of this identity, marked "reused"."""
+    path = dataset_dir / STATS_FILE
+    if not path.is_file():
+        raise FileExistsError(f"{dataset_dir} exists but holds no {STATS_FILE}, so it was not written by a "
+                              "finished build; rebuild it with --overwrite")
+    stored = json.loads(path.read_text())
+    if stored.get("identity") != identity:
+        raise FileExistsError(f"{dataset_dir} holds a dataset of another identity (its {STATS_FILE} differs from "
+                              "this build's); rebuild it with --overwrite")
+    return {**stored, "reused": True}
+
+
 # -- the build ----------------------------------------------------------------------------------
 
 def _examples(config: BuildConfig, views, single, multi, split, lacking, mosaics=None, skipped=None):
@@ -284,17 +341,35 @@ def _token_stats(lengths: list[int]) -> dict:
 
 
 def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dict:
-    """Build (or, with write=False, only plan, check and count) one dataset; returns the statistics.
+    """Build (or, with write=False, only plan, check and count) one dataset; returns the statistics
+(JSON data: lists, not tuples).
 
-    tokenize=False stops after the checks and the statistics of pass 1 (no token lengths)."""
+    tokenize=False stops after the checks and the statistics of pass 1 (no token lengths). When
+    writing into a folder that already holds this dataset (same identity), returns its stored
+    statistics with "reused": true instead, unless `config.overwrite`."""
     source = pathlib.Path(config.source)
     if config.protocol not in ("honest", "paper"):
         raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
+    if not source.is_dir():
+        raise FileNotFoundError(f"source folder {source} does not exist")
     format_config = config.format_config()
-    photos = read_photos(source)
-    word_source, words, lacking = object_words(source, config.annotations, photos)
-    kinds = config.kinds if config.kinds is not None else (("all",) if word_source != "rules" else RULE_KINDS)
+    word_source_name, _ = word_source(source, config.annotations)
+    kinds = config.kinds if config.kinds is not None else (("all",) if word_source_name != "rules" else RULE_KINDS)
     single, multi = sample_stage.parse_kinds(kinds)
+    identity = build_identity(config)
+    if write:
+        if config.out is None:
+            raise ValueError("--out is required to write the dataset")
+        if not tokenize:
+            raise ValueError("writing a dataset needs its tokens (tokenize=True)")
+        out = pathlib.Path(config.out)
+        written_config = dataset_config(config, single, multi, identity)
+        dataset_dir = tfds_builders.dataset_folder(out, written_config)
+        if dataset_dir.exists() and not config.overwrite:
+            return reused_stats(dataset_dir, identity)
+
+    photos = read_photos(source)
+    word_source_name, words, lacking = object_words(source, config.annotations, photos)
     views, view_counts = split_views(config, photos, words)
 
     # pass 1: samples, checks, statistics, the tokenizer's corpus
@@ -340,17 +415,16 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             "object_ids": sorted(int(o) for o in object_ids),
         }
     stats["separation"] = check_separation(ids, config.protocol, config.split)
-    stats["config"] = {**dataclasses.asdict(config), "fold_seed": config.folds_seed(), "word_source": word_source,
+    stats["config"] = {**dataclasses.asdict(config), "fold_seed": config.folds_seed(), "word_source": word_source_name,
                        "single_kinds": list(single), "multi_kinds": list(multi), "photos": len(photos)}
+    stats["identity"] = identity
     stats["photos_without_words"] = {photo: {"kinds": list(kinds), "reason": reason}
                                      for photo, (kinds, reason) in sorted(lacking.items())}
     if not corpus:
         raise ValueError("the training split has no examples; nothing to train a tokenizer on or to write")
 
     if not tokenize:
-        if write:
-            raise ValueError("writing a dataset needs its tokens (tokenize=True)")
-        return stats
+        return identity_lib.normalised(stats)
     if config.tokenizer:
         tokenizer = load_tokenizer(config.tokenizer, scheme="fairseq", numbers=config.numbers)
     else:
@@ -361,7 +435,6 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     # pass 2: the same examples, tokenized (and written)
     lengths = {"train": [], "test": []}
     truncated = {"train": 0, "test": 0}
-
     png = tfds_builders.PngCache()
 
     def records(split):
@@ -371,31 +444,31 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             truncated[split] += int(encoded["truncated"])
             yield tfds_builders.example_record(encoded, example, png)
 
-    if write:
-        if config.out is None:
-            raise ValueError("--out is required to write the dataset")
-        out = pathlib.Path(config.out)
-        dataset_dir = tfds_builders.write_instruct_grasp(
-            {split: records(split) for split in ("train", "test")}, out,
-            protocol=config.protocol, split_by=config.split, fold=config.fold, folds=config.folds,
-            kinds=tuple(k for k in single) + tuple(sample_stage.MULTI_PREFIX + k for k in multi),
-            augmentations=config.augmentations, seed=config.seed, fold_seed=config.folds_seed(),
-            representation=config.representation,
-            angle_code=config.angle_code, individual=config.individual, loss_on=config.loss_on,
-            numbers=config.numbers, max_length=config.max_length)
-        tokenizer_path = tokenizer.save(dataset_dir / "tokenizer.model")
-        stats["dataset_dir"] = str(dataset_dir)
-        stats["tokenizer"]["path"] = str(tokenizer_path)
-    else:
+    def token_stats():
+        for split in ("train", "test"):
+            stats["splits"][split]["token_length"] = _token_stats(lengths[split])
+            stats["splits"][split]["truncated"] = truncated[split]
+
+    if not write:
         for split in ("train", "test"):
             for _ in records(split):
                 pass
-    for split in ("train", "test"):
-        stats["splits"][split]["token_length"] = _token_stats(lengths[split])
-        stats["splits"][split]["truncated"] = truncated[split]
-    if write:
-        (pathlib.Path(stats["dataset_dir"]) / "build_stats.json").write_text(json.dumps(stats, indent=1))
-    return stats
+        token_stats()
+        return identity_lib.normalised(stats)
+
+    def finish(staged: pathlib.Path):
+        """Runs on the complete staged folder, before it is published under its final name."""
+        token_stats()
+        tokenizer.save(staged / "tokenizer.model")
+        stats["tokenizer"]["path"] = str(dataset_dir / "tokenizer.model")
+        stats["dataset_dir"] = str(dataset_dir)
+        stats["dataset_name"] = written_config.name
+        stats["reused"] = False
+        (staged / STATS_FILE).write_text(json.dumps(stats, indent=1))
+
+    tfds_builders.write_instruct_grasp({split: records(split) for split in ("train", "test")}, out, written_config,
+                                       overwrite=config.overwrite, finish=finish)
+    return identity_lib.normalised(stats)  # as JSON reads it back, so a reuse returns the same
 
 
 # -- command line -------------------------------------------------------------------------------
@@ -430,6 +503,8 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
     parser.add_argument("--tokenizer", help="an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
     parser.add_argument("--text-pieces", type=int, default=1000, help="pieces of a trained tokenizer besides the symbols")
     parser.add_argument("--ambiguous-mosaics", action="store_true", help="draw distractors at random, as the paper did")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="rebuild the dataset if its folder exists (default: reuse it and say so)")
     args = parser.parse_args(argv)
     return BuildConfig(
         source=args.source, out=args.out, protocol=args.protocol, split=args.split, fold=args.fold, folds=args.folds,
@@ -439,14 +514,14 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
         test_crop=args.test_crop, representation=args.representation, angle_code=not args.no_angle_code,
         individual=not args.joint, loss_on=args.loss_on, target_grasp=args.target_grasp, numbers=args.numbers,
         max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer, text_pieces=args.text_pieces,
-        unambiguous=not args.ambiguous_mosaics)
+        unambiguous=not args.ambiguous_mosaics, overwrite=args.overwrite)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     config = parse_args(argv)
     try:
         stats = build(config)
-    except (ValueError, FileNotFoundError, KeyError) as error:
+    except (ValueError, FileNotFoundError, FileExistsError, KeyError) as error:
         print(f"build failed: {error}", file=sys.stderr)
         return 2
     except BuildCheckError as error:  # a must-hold property broke: a bug upstream, not bad input

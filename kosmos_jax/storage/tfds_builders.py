@@ -12,10 +12,15 @@ themselves (`_LocalBuilder`), in tfds' layout.
 Two builders:
 - `CornellFolder`: every photo of a Cornell-format folder, given as `manual_dir`, in one split
   "full" (folds are decided later, by `kosmos_jax.data.splits`).
-- `InstructGrasp`: formatted and tokenized INSTRUCT-GRASP examples, one config per protocol,
-  split scheme, fold, kinds, build size and text format (`InstructGraspConfig`). The examples are
-  made by `kosmos_jax.data.build` and handed to the builder (`records=`), since they depend on the
-  other pipeline stages; the builder owns the layout on disk and the feature spec.
+- `InstructGrasp`: formatted and tokenized INSTRUCT-GRASP examples, one config per dataset
+  identity (`InstructGraspConfig`: a readable name of the main settings plus a hash of the
+  build's full identity, `kosmos_jax.storage.identity`). The examples are made by
+  `kosmos_jax.data.build` and handed to the builder (`records=`), since they depend on the other
+  pipeline stages; the builder owns the layout on disk and the feature spec.
+
+`write_instruct_grasp` never reuses a folder silently: it refuses an existing one unless told to
+overwrite, and writes through a staging folder renamed into place at the end
+(`kosmos_jax.storage.publish`), so a folder under the final name is always complete.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import dataclasses
 import inspect
 import pathlib
 import sys
-from typing import Iterable, Mapping
+from typing import Callable, Iterable, Mapping
 
 import cv2
 import numpy as np
@@ -34,6 +39,8 @@ from etils import epath
 from tensorflow_datasets.core import example_serializer
 
 from kosmos_jax.data import cornell
+from kosmos_jax.storage import identity as identity_lib
+from kosmos_jax.storage import publish
 from kosmos_jax.storage.samples import ALL_BUILD_KINDS
 from kosmos_jax.storage.shards import ShardWriter
 
@@ -162,17 +169,27 @@ class CornellFolder(_LocalBuilder):
 
 
 def build_cornell(source, data_dir) -> pathlib.Path:
-    """Write the Cornell-format folder `source` under `data_dir`; returns the dataset's folder."""
+    """Write the Cornell-format folder `source` under `data_dir`; returns the dataset's folder.
+
+    The config is named by the folder's content digest, so an existing folder of that name (which
+    tfds reuses) holds exactly these files' photos, and an edited source gets a folder of its own."""
     if not pathlib.Path(source).is_dir():
         raise FileNotFoundError(f"Cornell folder {source} does not exist")
-    builder = CornellFolder(data_dir=str(data_dir), file_format=ARRAY_RECORD)
+    digest = identity_lib.content_digest(source)[: identity_lib.HASH_LENGTH]
+    config = tfds.core.BuilderConfig(name=f"content-{digest}", description=f"the photos of {source}")
+    builder = CornellFolder(config=config, data_dir=str(data_dir), file_format=ARRAY_RECORD)
     _quietly(builder.download_and_prepare, download_config=tfds.download.DownloadConfig(manual_dir=str(source)))
     return pathlib.Path(builder.data_dir)
 
 
+def open_cornell(dataset_dir):
+    """The random-access source of a written Cornell folder's photos (split "full")."""
+    return _tfds_splits(dataset_dir)[CORNELL_SPLIT]
+
+
 @dataclasses.dataclass(eq=False)  # tfds.core.BuilderConfig is a mutable dataclass
 class InstructGraspConfig(tfds.core.BuilderConfig):
-    """One INSTRUCT-GRASP build. `name` is derived from the fields when left empty."""
+    """One INSTRUCT-GRASP build. `identity`: everything that decides the data (see `make_config`)."""
 
     protocol: str = "honest"
     split_by: str = "image"
@@ -190,10 +207,11 @@ class InstructGraspConfig(tfds.core.BuilderConfig):
     max_length: int = 128
     image_size: int = 224
     max_answers: int = 64
+    identity: dict = dataclasses.field(default_factory=dict)
 
 
-def config_name(config: InstructGraspConfig) -> str:
-    """Every field that changes the data, e.g.
+def readable_name(config: InstructGraspConfig) -> str:
+    """The main settings, e.g.
     "honest-image-fold0-all-aug16-xya-code-individual-target-digits-len192-seed0-foldseed0"."""
     kinds = tuple(config.kinds)
     label = "all" if sorted(kinds) == sorted(ALL_BUILD_KINDS) or not kinds else "_".join(kinds)
@@ -205,10 +223,17 @@ def config_name(config: InstructGraspConfig) -> str:
     ])
 
 
-def make_config(**fields) -> InstructGraspConfig:
+def make_config(identity: Mapping | None = None, **fields) -> InstructGraspConfig:
+    """The config of one build: named `readable_name` + "-" + a hash of the fields, the layout
+    version and `identity` (the caller's account of every other input that changes the data, e.g.
+    the augmentation recipe, crops, source files), so two builds share a name only when all of
+    these are equal."""
     fields["kinds"] = tuple(fields.get("kinds", ()))
-    name = config_name(InstructGraspConfig(name="probe", **fields))
-    return InstructGraspConfig(name=name, description=f"INSTRUCT-GRASP {name}", **fields)
+    identity = identity_lib.normalised(dict(identity or {}))
+    probe = InstructGraspConfig(name="probe", **fields)
+    hashed = identity_lib.short_hash({"fields": fields, "identity": identity, "version": str(InstructGrasp.VERSION)})
+    name = f"{readable_name(probe)}-{hashed}"
+    return InstructGraspConfig(name=name, description=f"INSTRUCT-GRASP {name}", identity=identity, **fields)
 
 
 def instruct_features(max_length: int, image_size: int) -> tfds.features.FeaturesDict:
@@ -310,17 +335,41 @@ def example_record(encoded: Mapping[str, np.ndarray], example, png=png_bytes) ->
     }
 
 
-def write_instruct_grasp(records: Mapping[str, Iterable[dict]], data_dir, **config_fields) -> pathlib.Path:
-    """Write the records of each split under `data_dir`; returns the dataset's version folder."""
-    config = make_config(**config_fields)
-    builder = InstructGrasp(records=records, config=config, data_dir=str(data_dir), file_format=ARRAY_RECORD)
-    _quietly(builder.download_and_prepare)
-    return pathlib.Path(builder.data_dir)
+def dataset_folder(data_dir, config: InstructGraspConfig) -> pathlib.Path:
+    """Where the dataset of `config` lives under `data_dir` (tfds' layout: name/config/version)."""
+    return pathlib.Path(data_dir) / InstructGrasp.name / config.name / str(InstructGrasp.VERSION)
 
 
-def open_splits(dataset_dir) -> dict:
-    """{split: random-access source} of a written dataset folder; no TensorFlow, no registration."""
+def write_instruct_grasp(records: Mapping[str, Iterable[dict]], data_dir, config: InstructGraspConfig, *,
+                         overwrite: bool = False, finish: Callable[[pathlib.Path], None] | None = None) -> pathlib.Path:
+    """Write the records of each split under `data_dir`; returns the dataset's version folder.
+
+    An existing folder of this config is an error unless `overwrite`. `finish(folder)` runs on the
+    written folder before it is published (to add files that belong to the dataset); an exception
+    anywhere leaves no folder under the final name."""
+    final = dataset_folder(data_dir, config)
+    if final.exists() and not overwrite:
+        raise FileExistsError(f"{final} already holds this dataset; open it, or overwrite it")
+    relative = final.relative_to(data_dir)
+    with publish.staged(data_dir, relative, overwrite) as root:
+        builder = InstructGrasp(records=records, config=config, data_dir=str(root), file_format=ARRAY_RECORD)
+        _quietly(builder.download_and_prepare)
+        if finish is not None:
+            finish(root / relative)
+    return final
+
+
+def _read_builder(dataset_dir):
     dataset_dir = pathlib.Path(dataset_dir)
     if not (dataset_dir / "dataset_info.json").is_file():
         raise FileNotFoundError(f"{dataset_dir} is not a written TFDS dataset (no dataset_info.json)")
-    return dict(tfds.builder_from_directory(str(dataset_dir)).as_data_source())
+    return tfds.builder_from_directory(str(dataset_dir))
+
+
+def _tfds_splits(dataset_dir) -> dict:
+    return dict(_read_builder(dataset_dir).as_data_source())
+
+
+def open_splits(dataset_dir) -> dict:
+    """{split: random-access source} of a written INSTRUCT-GRASP folder; no TensorFlow, no registration."""
+    return _tfds_splits(dataset_dir)
