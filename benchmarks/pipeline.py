@@ -5,10 +5,11 @@
 1. Builds a dataset from a Cornell-format folder (default: ../shared/data/cornell with the
    KOSMOS-E annotations, else 40 synthetic photos) at the paper's density (16 augmentations per
    training photo as 4 whole-degree rotations x 4 shifts, every instruction kind), honest protocol,
-   object-wise fold 0, and times it.
-2. Reads the training split with the grain pipeline (shuffle, decode, fixed-shape batches of 32)
-   and reports samples/s; the peer is a plain Python loop reading the same records in the same
-   shuffled order and stacking them, in the same run.
+   object-wise fold 0, and times it; reports the examples and distinct images stored per split
+   (each image once, examples refer to it) and the bytes on disk.
+2. Reads the training split with the grain pipeline (shuffle, join each example's image, decode,
+   fixed-shape batches of 32) and reports samples/s; the peer is a plain Python loop reading the
+   same records (image joined) in the same shuffled order and stacking them, in the same run.
 3. The consumer: samples/s of one forward+backward pass of the `small` model on batches of the same
    shape, so "far above what a training step consumes" is a printed ratio, not a claim.
 The built dataset lives in a temporary folder removed at the end (--keep to keep it).
@@ -98,12 +99,15 @@ def main():
         grain_rate = time_grain(train, args.batch, args.batches)
         plain_rate = time_plain_loop(train, args.batch, args.batches)
         step_rate = time_small_model_step(args.batch, length)
-        examples = {split: info.get("examples") for split, info in stats["splits"].items()}
+        splits = stats["splits"]
         report = {
             "source": str(source),
             "augmentations_per_training_photo": args.augmentations,
             "build_seconds": round(build_seconds, 1),
-            "examples": examples,
+            "reused": stats["reused"],
+            "examples": {split: info["examples"] for split, info in splits.items()},
+            "distinct_images": {split: info["images"] for split, info in splits.items()},
+            "bytes_on_disk_by_split": {split: info["bytes_on_disk"] for split, info in splits.items()},
             "dataset_bytes": sum(f.stat().st_size for f in pathlib.Path(stats["dataset_dir"]).rglob("*") if f.is_file()),
             "grain_samples_per_s": round(grain_rate),
             "plain_loop_samples_per_s": round(plain_rate),

@@ -1,5 +1,5 @@
 """The build command on a tiny synthetic Cornell-format source: folds, must-hold checks, errors, CLI,
-dataset identity (reuse, overwrite, interrupted builds)."""
+dataset identity (reuse, overwrite, interrupted builds) and the image tables it writes."""
 
 import json
 import math
@@ -14,8 +14,10 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.data import splits, synthetic
 from kosmos_jax.data import build as build_module
-from kosmos_jax.data.build import BuildCheckError, BuildConfig, build, build_identity, check_example, check_separation, main
+from kosmos_jax.data.build import (BuildCheckError, BuildConfig, build, build_identity, check_example, check_separation,
+                                   check_written, main)
 from kosmos_jax.storage import identity as identity_lib
+from kosmos_jax.storage import images as image_table
 from kosmos_jax.storage import pipeline, publish
 from kosmos_jax.storage.tfds_builders import open_splits
 from kosmos_jax.text.formatter import FormatConfig, TextExample, parse_target
@@ -262,6 +264,57 @@ def test_real_cornell_with_kosmos_e_annotations(cornell_root, kosmos_e_annotatio
                   write=False, tokenize=False)
     assert stats["config"]["word_source"] == "kosmos_e"
     assert stats["separation"]["shared_objects"] == 0
+
+
+# -- the images stored once ---------------------------------------------------------------------
+
+def test_each_record_joins_the_image_it_was_made_from(written, source):
+    """Every written example, in order, against the examples the build makes from the same config."""
+    stats, splits_on_disk = written
+    config = BuildConfig(source=str(source), split="object", fold=1, augmentations=2)
+    photos = build_module.read_photos(source)
+    _, words, lacking = build_module.object_words(source, None, photos)
+    views, _ = build_module.split_views(config, photos, words)
+    single, multi = build_module.sample_stage.parse_kinds(("all",))
+    for name, stored in splits_on_disk.items():
+        made = [example for _, example in build_module._examples(config, views[name], single, multi, name, lacking)]
+        assert len(made) == len(stored)
+        rows = {}
+        for number, example in enumerate(made):
+            record = stored[number]
+            assert bytes(record["instruction"]).decode() == example.instruction
+            assert np.array_equal(record["image"], example.image)
+            rows.setdefault(image_table.digest(example.image), int(record["image_index"]))
+        # one row per distinct image (views and mosaics), far fewer than the examples
+        assert len(stored.images) == len(rows) == stats["splits"][name]["images"] < len(stored)
+        assert sorted(rows.values()) == list(range(len(rows)))
+
+
+def test_statistics_report_images_and_bytes_on_disk(written):
+    stats, _ = written
+    folder = pathlib.Path(stats["dataset_dir"])
+    files = {f.name: f.stat().st_size for f in folder.iterdir()}
+    for name in ("train", "test"):
+        usage = stats["splits"][name]["bytes_on_disk"]
+        assert usage["images"] == sum(size for file, size in files.items() if file.startswith(f"images-{name}."))
+        assert usage["examples"] == sum(size for file, size in files.items() if file.startswith(f"instruct_grasp-{name}."))
+        assert usage["images"] > 0 and usage["examples"] > 0
+    assert stats["bytes_on_disk"] == sum(size for file, size in files.items() if file != "build_stats.json")
+
+
+def test_check_written_catches_a_wrong_join_and_a_short_split(written):
+    stats, splits_on_disk = written
+    folder = pathlib.Path(stats["dataset_dir"])
+    examples = {name: len(split) for name, split in splits_on_disk.items()}
+    right = {name: {0: image_table.digest(split[0]["image"])} for name, split in splits_on_disk.items()}
+    found = check_written(folder, examples, right)
+    assert found["train"]["images"] == len(splits_on_disk["train"].images)
+    other = splits_on_disk["train"].images[len(splits_on_disk["train"].images) - 1]
+    wrong = {**right, "train": {0: image_table.digest(other)}}
+    with pytest.raises(BuildCheckError, match="example 0 of split 'train'.*not the image it was made from"):
+        check_written(folder, examples, wrong)
+    with pytest.raises(BuildCheckError, match="split 'test' holds"):
+        check_written(folder, {**examples, "test": examples["test"] + 1}, right)
 
 
 # -- identity, reuse, overwrite, interruption ---------------------------------------------------

@@ -1,5 +1,5 @@
-"""TFDS array_record builders (no TensorFlow) and the grain pipeline: round trips, shards, resume,
-atomic writes."""
+"""TFDS array_record builders (no TensorFlow) and the grain pipeline: round trips, image tables,
+shards, resume, atomic writes."""
 
 import json
 import sys
@@ -10,17 +10,27 @@ import pytest
 
 from kosmos_jax.data import cornell
 from kosmos_jax.storage import pipeline
+from kosmos_jax.storage.images import digest, png_bytes
 from kosmos_jax.storage.tfds_builders import (CORNELL_SPLIT, build_cornell, dataset_folder, make_config, open_cornell,
-                                              open_splits, png_bytes, write_instruct_grasp)
+                                              open_splits, write_instruct_grasp)
 
 LENGTH, SIZE = 80, 16
+IMAGES = 4  # distinct images of the test records: examples share them, as a view's examples do
 
 
-def _record(index: int, answers: int = 2) -> dict:
+def _image(number: int) -> np.ndarray:
+    return np.random.default_rng(1000 + number).integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8)
+
+
+SHARED_IMAGES = [_image(n) for n in range(IMAGES)]
+
+
+def _record(index: int, answers: int = 2, image: np.ndarray | None = None) -> dict:
+    """Record `index`; its image is one of SHARED_IMAGES (the same array object) unless given."""
     rng = np.random.default_rng(index)
     tokens = rng.integers(4, 500, LENGTH).astype(np.int32)
     return {
-        "image": png_bytes(rng.integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8)),
+        "image": SHARED_IMAGES[index % IMAGES] if image is None else image,
         "tokens": tokens,
         "loss_mask": np.arange(LENGTH) > 70,
         "image_mask": (np.arange(LENGTH) >= 2) & (np.arange(LENGTH) < 66),
@@ -110,8 +120,8 @@ def test_instruct_grasp_round_trip(written):
     stored = {bytes(r["instruction"]).decode(): r for r in (splits["train"][i] for i in range(23))}
     for original in records["train"]:
         back = stored[original["instruction"]]
-        image = cv2.imdecode(np.frombuffer(original["image"], np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
-        assert np.array_equal(back["image"], image)  # PNG is lossless
+        assert back["image"].dtype == np.uint8
+        assert np.array_equal(back["image"], original["image"])  # the joined image is the record's own
         assert np.array_equal(back["tokens"], original["tokens"])
         assert np.array_equal(back["loss_mask"], original["loss_mask"])
         assert np.array_equal(back["answers"], original["answers"])
@@ -263,6 +273,43 @@ def test_shards_keep_generation_order(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="split 'test' has no examples"):
         write_instruct_grasp({"train": records["train"], "test": []}, tmp_path / "empty", _config())
     assert not (tmp_path / "empty" / "instruct_grasp").exists()  # nothing published
+
+
+def test_each_image_is_stored_once(written):
+    path, records = written
+    splits = open_splits(path)
+    # 23 train records over 4 shared arrays, 5 test records over 4 of them
+    assert len(splits["train"].images) == len(splits["test"].images) == IMAGES
+    for name, split in splits.items():
+        rows = {}
+        for i in range(len(split)):
+            example = split.examples[i]
+            assert "image" not in example  # pixels live in the table only
+            key = digest(records[name][i]["image"])
+            assert rows.setdefault(key, example["image_index"]) == example["image_index"]
+        assert sorted(rows.values()) == list(range(IMAGES))  # rows in first-use order, all used
+
+
+def test_equal_pixels_share_a_row_and_other_pixels_do_not(tmp_path):
+    first, other = _image(7), _image(8)
+    images = [first, first.copy(), other, first, other.copy()]  # copies: other objects, same pixels
+    records = {"train": [_record(i, image=image) for i, image in enumerate(images)], "test": [_record(9)]}
+    split = open_splits(write_instruct_grasp(records, tmp_path, _config()))["train"]
+    assert [split.examples[i]["image_index"] for i in range(5)] == [0, 0, 1, 0, 1]
+    assert len(split.images) == 2
+    for i, image in enumerate(images):
+        assert np.array_equal(split[i]["image"], image)
+    wrong_size = {"train": [_record(0, image=np.zeros((SIZE, SIZE + 1, 3), np.uint8))], "test": [_record(1)]}
+    with pytest.raises(ValueError, match=r"shape \(16, 17, 3\) in split 'train'"):
+        write_instruct_grasp(wrong_size, tmp_path / "wrong", _config())
+
+
+def test_batches_join_each_example_its_own_image(written):
+    path, _ = written
+    for name in ("train", "test"):
+        for batch in pipeline.make_dataset(open_splits(path)[name], batch_size=4, seed=3, drop_remainder=False):
+            for index, image in zip(_ids(batch), batch["image"]):
+                assert np.array_equal(image, SHARED_IMAGES[index % IMAGES])
 
 
 def test_an_existing_dataset_is_never_written_over_silently(tmp_path):

@@ -14,7 +14,8 @@ un-rotated crop per test photo; paper: --augmentations augmented copies of every
 the public code folds them) -> samples of every kind, mosaics drawn within a split
 (kosmos_jax.storage.samples) -> text examples (kosmos_jax.text.formatter) -> tokenizer (trained on
 the training split's text, or --tokenizer FILE, a KOSMOS-2 SentencePiece model) -> array_record
-files under OUT (kosmos_jax.storage.tfds_builders), the tokenizer and build_stats.json beside them.
+files under OUT (kosmos_jax.storage.tfds_builders; each distinct image once per split, examples
+refer to it by index), the tokenizer and build_stats.json beside them.
 
 The dataset's folder is named by its main settings and a hash of its identity (`build_identity`):
 every setting but --out and --overwrite, and the content of every file read (source folder,
@@ -27,7 +28,10 @@ Checked on every example, else the build fails naming the sample: the target gra
 inside the image; the angle code is in [0, 255]; the target text parses back to the grasp (within
 half a pixel and one angle bin; TLBRA-patch only within its image); and, in the honest
 protocol, no test photo (object-wise: no test object) is in any training sample, mosaics included.
-The statistics list, per split, the photo ids and object ids its samples were made from.
+Re-read once written: each split holds as many examples as were made, and the image joined back to
+a spread of examples (about `SPOT_CHECKS` a split, the last one included) is the image it was made
+from. The statistics list, per split, the photo ids and object ids its samples were made from, the
+distinct images stored and the bytes on disk.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ from kosmos_jax.annotators.base import ObjectWords
 from kosmos_jax.data import cornell, splits
 from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, read_annotations
 from kosmos_jax.storage import identity as identity_lib
+from kosmos_jax.storage import images as image_table
 from kosmos_jax.storage import samples as sample_stage
 from kosmos_jax.storage import tfds_builders
 from kosmos_jax.storage.views import augment_config, count_views, make_views
@@ -61,6 +66,7 @@ from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
 WORD_SOURCES = ("kosmos_e", "synthetic", "rules")
 RULE_KINDS = ("non", "angle", "colour", "position", "multi-colour", "multi-position")
 STATS_FILE = "build_stats.json"
+SPOT_CHECKS = 32
 # BuildConfig fields that say where and whether to write, not what: left out of the identity
 NOT_DATA = ("out", "overwrite")
 # BuildConfig fields naming files read: in the identity by absolute path and content digest
@@ -340,6 +346,34 @@ def _token_stats(lengths: list[int]) -> dict:
             "max": int(values.max())}
 
 
+def spot_numbers(count: int, checks: int = SPOT_CHECKS) -> set[int]:
+    """About `checks` example numbers spread over 0..count-1, the first and last included."""
+    if count <= 0:
+        return set()
+    return {int(n) for n in np.linspace(0, count - 1, min(count, checks)).round()}
+
+
+def check_written(dataset_dir: pathlib.Path, examples: dict[str, int], spots: dict[str, dict[int, bytes]]) -> dict:
+    """Re-read a written dataset: each split's example count, its image table, and the images joined
+    to the spot-checked examples against the digests of the images they were made from.
+    Returns {split: {"images": distinct images stored, "bytes_on_disk": {...}}}."""
+    usage = tfds_builders.disk_usage(dataset_dir)
+    found = {}
+    for split, stored in tfds_builders.open_splits(dataset_dir).items():
+        if len(stored) != examples[split]:
+            raise BuildCheckError(f"split {split!r} holds {len(stored)} examples on disk, {examples[split]} were made")
+        if not 0 < len(stored.images) <= len(stored):
+            raise BuildCheckError(f"split {split!r} stores {len(stored.images)} images for {len(stored)} examples")
+        for number, want in spots[split].items():
+            record = stored[number]
+            if image_table.digest(record["image"]) != want:
+                raise BuildCheckError(f"example {number} of split {split!r} ({bytes(record['kind']).decode()}, photos "
+                                      f"{[bytes(p).decode() for p in record['photo_ids']]}) joins image "
+                                      f"{int(record['image_index'])}, not the image it was made from")
+        found[split] = {"images": len(stored.images), "bytes_on_disk": usage["splits"][split]}
+    return found
+
+
 def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dict:
     """Build (or, with write=False, only plan, check and count) one dataset; returns the statistics
 (JSON data: lists, not tuples).
@@ -435,14 +469,17 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     # pass 2: the same examples, tokenized (and written)
     lengths = {"train": [], "test": []}
     truncated = {"train": 0, "test": 0}
-    png = tfds_builders.PngCache()
+    # digests of the images of a spread of examples, to check what the written dataset joins back
+    spots = {split: dict.fromkeys(spot_numbers(stats["splits"][split]["examples"])) for split in ("train", "test")}
 
     def records(split):
-        for sample, example in _examples(config, views[split], single, multi, split, lacking):
+        for number, (sample, example) in enumerate(_examples(config, views[split], single, multi, split, lacking)):
             encoded = layout.encode_example(example, tokenizer, format_config)
             lengths[split].append(int(encoded["length"]))
             truncated[split] += int(encoded["truncated"])
-            yield tfds_builders.example_record(encoded, example, png)
+            if number in spots[split]:
+                spots[split][number] = image_table.digest(example.image)
+            yield tfds_builders.example_record(encoded, example)
 
     def token_stats():
         for split in ("train", "test"):
@@ -459,10 +496,14 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     def finish(staged: pathlib.Path):
         """Runs on the complete staged folder, before it is published under its final name."""
         token_stats()
+        examples = {split: stats["splits"][split]["examples"] for split in ("train", "test")}
+        for split, found in check_written(staged, examples, spots).items():
+            stats["splits"][split].update(found)
         tokenizer.save(staged / "tokenizer.model")
         stats["tokenizer"]["path"] = str(dataset_dir / "tokenizer.model")
         stats["dataset_dir"] = str(dataset_dir)
         stats["dataset_name"] = written_config.name
+        stats["bytes_on_disk"] = tfds_builders.disk_usage(staged)["total"]  # all but this statistics file
         stats["reused"] = False
         (staged / STATS_FILE).write_text(json.dumps(stats, indent=1))
 

@@ -1,5 +1,10 @@
 """A grain input pipeline over a written split: shuffle, shard by process, batch, resume exactly.
 
+The split is a `StoredSplit` (`tfds_builders.open_splits`): example records that hold an
+`image_index`, and the split's image table. The pipeline shuffles and shards the examples, and
+its map step joins each one's image back (decoding its PNG), so the image is read once per
+example drawn, as before, while it is stored once per view or mosaic.
+
 Order of operations: a seeded global shuffle of the whole split (every process draws the same
 permutation), then process `process_index` takes every `process_count`-th example of it, so the
 processes see disjoint parts of each epoch; then records become fixed-shape arrays and are
@@ -40,7 +45,7 @@ def to_arrays(record: Mapping[str, Any], max_answers: int) -> dict[str, np.ndarr
 
 
 def make_dataset(
-    source,
+    split,
     batch_size: int,
     *,
     seed: int = 0,
@@ -53,14 +58,17 @@ def make_dataset(
     max_answers: int = 64,
     read_options: grain.ReadOptions | None = None,
 ) -> grain.IterDataset:
-    """The batched dataset of one split; `iter()` it, and use get_state / set_state to resume."""
+    """The batched dataset of one split (a `StoredSplit`: `.examples` and `.images`); `iter()` it,
+    and use get_state / set_state to resume (the state is the examples' position only: the join is
+    a pure function of the example)."""
     if batch_size < 1:
         raise ValueError(f"batch_size must be positive, got {batch_size}")
     if not 0 <= process_index < process_count:
         raise ValueError(f"process_index {process_index} outside 0..{process_count - 1}")
-    if len(source) < process_count:
-        raise ValueError(f"a split of {len(source)} examples cannot be shared by {process_count} processes")
-    dataset = grain.MapDataset.source(source)
+    if len(split.examples) < process_count:
+        raise ValueError(f"a split of {len(split.examples)} examples cannot be shared by {process_count} processes")
+    images = split.images
+    dataset = grain.MapDataset.source(split.examples)
     if shuffle:
         dataset = dataset.shuffle(seed=seed)
     if even_shards:
@@ -68,7 +76,7 @@ def make_dataset(
     dataset = dataset[process_index::process_count]
     if num_epochs != 1:
         dataset = dataset.repeat(num_epochs, reseed_each_epoch=True)
-    dataset = dataset.map(lambda record: to_arrays(record, max_answers))
+    dataset = dataset.map(lambda record: to_arrays(images.join(record), max_answers))
     dataset = dataset.batch(batch_size, drop_remainder=drop_remainder)
     # read_options: grain's read threads and prefetch buffer (its defaults read far ahead)
     return dataset.to_iter_dataset(read_options)

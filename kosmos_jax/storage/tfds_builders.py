@@ -4,7 +4,8 @@ Checked on tensorflow-datasets 4.9.10 with TensorFlow absent: `GeneratorBasedBui
 `file_format="array_record"` writes and `tfds.builder_from_directory(...).as_data_source()` reads
 (`as_dataset()` and tfrecord need TensorFlow). `tfds.features.Image(encoding_format="png")`
 works as long as examples hand it encoded PNG bytes (we encode with OpenCV); reading decodes them
-back to uint8 arrays without TensorFlow. Strings come back as bytes. `DatasetInfo` is built
+back to uint8 arrays without TensorFlow (the Cornell photos; INSTRUCT-GRASP images go to their
+own tables). Strings come back as bytes. `DatasetInfo` is built
 directly: `dataset_info_from_configs` looks for metadata files beside the builder's module.
 tfds' split writer needs TensorFlow once a split passes 1 GB, so the builders write their shards
 themselves (`_LocalBuilder`), in tfds' layout.
@@ -16,7 +17,9 @@ Two builders:
   identity (`InstructGraspConfig`: a readable name of the main settings plus a hash of the
   build's full identity, `kosmos_jax.storage.identity`). The examples are made by
   `kosmos_jax.data.build` and handed to the builder (`records=`), since they depend on the other
-  pipeline stages; the builder owns the layout on disk and the feature spec.
+  pipeline stages; the builder owns the layout on disk and the feature spec. Version 2.0.0 stores
+  each distinct image once per split (`kosmos_jax.storage.images`): an example holds
+  `image_index`, and `open_splits` gives splits that join the image back.
 
 `write_instruct_grasp` never reuses a folder silently: it refuses an existing one unless told to
 overwrite, and writes through a staging folder renamed into place at the end
@@ -29,10 +32,10 @@ import contextlib
 import dataclasses
 import inspect
 import pathlib
+import re
 import sys
 from typing import Callable, Iterable, Mapping
 
-import cv2
 import numpy as np
 import tensorflow_datasets as tfds
 from etils import epath
@@ -41,23 +44,12 @@ from tensorflow_datasets.core import example_serializer
 from kosmos_jax.data import cornell
 from kosmos_jax.storage import identity as identity_lib
 from kosmos_jax.storage import publish
+from kosmos_jax.storage.images import ImageTable, ImageTableWriter, StoredSplit, png_bytes
 from kosmos_jax.storage.samples import ALL_BUILD_KINDS
 from kosmos_jax.storage.shards import ShardWriter
 
 ARRAY_RECORD = "array_record"
 CORNELL_SPLIT = "full"
-
-
-def png_bytes(rgb: np.ndarray) -> bytes:
-    """RGB uint8 [H, W, 3] -> PNG bytes (OpenCV writes BGR, hence the flip)."""
-    rgb = np.asarray(rgb)
-    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"expected an RGB uint8 [H, W, 3] image, got {rgb.dtype} {rgb.shape}")
-    # level 1: about 3x faster than OpenCV's default 3 and a few percent larger
-    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:
-        raise ValueError(f"OpenCV could not encode an image of shape {rgb.shape} as PNG")
-    return encoded.tobytes()
 
 
 def _quietly(function, *args, **kwargs):
@@ -236,11 +228,11 @@ def make_config(identity: Mapping | None = None, **fields) -> InstructGraspConfi
     return InstructGraspConfig(name=name, description=f"INSTRUCT-GRASP {name}", identity=identity, **fields)
 
 
-def instruct_features(max_length: int, image_size: int) -> tfds.features.FeaturesDict:
+def instruct_features(max_length: int) -> tfds.features.FeaturesDict:
     sequence = (max_length,)
     return tfds.features.FeaturesDict(
         {
-            "image": tfds.features.Image(shape=(image_size, image_size, 3), encoding_format="png"),
+            "image_index": np.int32,  # row of the split's image table
             "tokens": tfds.features.Tensor(shape=sequence, dtype=np.int32),
             "loss_mask": tfds.features.Tensor(shape=sequence, dtype=np.bool_),
             "image_mask": tfds.features.Tensor(shape=sequence, dtype=np.bool_),
@@ -262,9 +254,11 @@ def instruct_features(max_length: int, image_size: int) -> tfds.features.Feature
 
 
 class InstructGrasp(_LocalBuilder):
-    """INSTRUCT-GRASP examples; `records` maps a split name to its examples (dicts of the features)."""
+    """INSTRUCT-GRASP examples; `records` maps a split name to its examples (dicts of the features,
+    with the image as a uint8 array under "image", which goes to the split's image table)."""
 
-    VERSION = tfds.core.Version("1.0.0")
+    VERSION = tfds.core.Version("2.0.0")
+    RELEASE_NOTES = {"2.0.0": "each distinct image stored once per split; examples hold image_index"}
     # no predefined configs: every build passes its own (a predefined one of the same name but other
     # sizes would be refused by tfds)
 
@@ -277,8 +271,9 @@ class InstructGrasp(_LocalBuilder):
         return tfds.core.DatasetInfo(
             builder=self,
             description="INSTRUCT-GRASP samples (KOSMOS-E) in the KOSMOS-2 prompt layout.",
-            features=instruct_features(config.max_length, config.image_size),
-            metadata=tfds.core.MetadataDict({"config": dataclasses.asdict(config)}),
+            features=instruct_features(config.max_length),
+            # "images": {split: its image table's files}, filled in as the splits are written
+            metadata=tfds.core.MetadataDict({"config": dataclasses.asdict(config), "images": {}}),
         )
 
     def _split_generators(self, dl_manager):
@@ -287,35 +282,23 @@ class InstructGrasp(_LocalBuilder):
         return {split: self._generate_examples(split, examples) for split, examples in self._records.items()}
 
     def _generate_examples(self, split, examples):
-        for index, example in enumerate(examples):
-            yield f"{split}-{index:08d}", example
+        size = self.builder_config.image_size
+        images = ImageTableWriter(self.data_dir, split, (size, size, 3))
+        try:
+            for index, example in enumerate(examples):
+                example = dict(example)
+                example["image_index"] = images.index(example.pop("image"))
+                yield f"{split}-{index:08d}", example
+        except BaseException:
+            images.abandon()
+            raise
+        self.info.metadata["images"][split] = images.close()
 
 
-class PngCache:
-    """PNG bytes of recently seen image arrays: the examples of one view or mosaic share one array.
-
-    Entries hold a reference to their array, so an id cannot be reused while it is cached.
-    """
-
-    def __init__(self, size: int = 256):
-        self.size = size
-        self._entries: dict[int, tuple[np.ndarray, bytes]] = {}
-
-    def __call__(self, image: np.ndarray) -> bytes:
-        entry = self._entries.get(id(image))
-        if entry is not None and entry[0] is image:
-            return entry[1]
-        encoded = png_bytes(image)
-        if len(self._entries) >= self.size:
-            self._entries.pop(next(iter(self._entries)))
-        self._entries[id(image)] = (image, encoded)
-        return encoded
-
-
-def example_record(encoded: Mapping[str, np.ndarray], example, png=png_bytes) -> dict:
+def example_record(encoded: Mapping[str, np.ndarray], example) -> dict:
     """A `TextExample` and its `layout.encode_example` arrays as one InstructGrasp record."""
     return {
-        "image": png(example.image),
+        "image": example.image,
         "tokens": np.asarray(encoded["tokens"], np.int32),
         "loss_mask": np.asarray(encoded["loss_mask"], bool),
         "image_mask": np.asarray(encoded["image_mask"], bool),
@@ -359,6 +342,24 @@ def write_instruct_grasp(records: Mapping[str, Iterable[dict]], data_dir, config
     return final
 
 
+def disk_usage(dataset_dir) -> dict:
+    """Bytes of a written INSTRUCT-GRASP folder's files: {"splits": {split: {"examples": bytes of
+    its example shards, "images": bytes of its image table}}, "total": every file}."""
+    pattern = re.compile(rf"^(?:(?P<images>images)|{InstructGrasp.name})-(?P<split>\w+)\.{ARRAY_RECORD}-\d+-of-\d+$")
+    splits: dict[str, dict[str, int]] = {}
+    total = 0
+    for file in pathlib.Path(dataset_dir).iterdir():
+        if not file.is_file():
+            continue
+        size = file.stat().st_size
+        total += size
+        match = pattern.match(file.name)
+        if match:
+            usage = splits.setdefault(match["split"], {"examples": 0, "images": 0})
+            usage["images" if match["images"] else "examples"] += size
+    return {"splits": splits, "total": total}
+
+
 def _read_builder(dataset_dir):
     dataset_dir = pathlib.Path(dataset_dir)
     if not (dataset_dir / "dataset_info.json").is_file():
@@ -370,6 +371,13 @@ def _tfds_splits(dataset_dir) -> dict:
     return dict(_read_builder(dataset_dir).as_data_source())
 
 
-def open_splits(dataset_dir) -> dict:
-    """{split: random-access source} of a written INSTRUCT-GRASP folder; no TensorFlow, no registration."""
-    return _tfds_splits(dataset_dir)
+def open_splits(dataset_dir) -> dict[str, StoredSplit]:
+    """{split: StoredSplit} of a written INSTRUCT-GRASP folder: its examples and image table;
+    no TensorFlow, no registration."""
+    builder = _read_builder(dataset_dir)
+    tables = dict(builder.info.metadata.items()).get("images")  # items(): the lazy dict loads on it
+    if not tables:
+        raise ValueError(f"{dataset_dir} has no image tables (written before images were stored once per split); "
+                         "rebuild it")
+    sources = builder.as_data_source()
+    return {split: StoredSplit(source, ImageTable(dataset_dir, tables[split])) for split, source in sources.items()}
