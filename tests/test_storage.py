@@ -183,6 +183,9 @@ def test_batches_shapes_and_padding(written):
     assert batch["image"].shape == (5, SIZE, SIZE, 3) and batch["image"].dtype == np.uint8
     assert batch["tokens"].shape == (5, LENGTH) and batch["tokens"].dtype == np.int32
     assert batch["answers"].shape == (5, 8, 5)
+    dtypes = {name: batch[name].dtype for name in batch}
+    assert dtypes == {"image": np.uint8, "tokens": np.int32, "loss_mask": bool, "image_mask": bool, "length": np.int32,
+                      "grasp": np.float32, "grasp_mask": bool, "answers": np.float32, "answers_mask": bool}
     assert sorted(batch["answers_mask"].sum(axis=1).tolist()) == [1, 2, 3, 4, 5]
     for answers, mask in zip(batch["answers"], batch["answers_mask"]):
         assert np.all(answers[~mask] == 0)

@@ -27,12 +27,14 @@ from typing import Any, Mapping
 import grain
 import numpy as np
 
-NUMERIC_FEATURES = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp", "grasp_mask")
+# tfds hands scalars back as Python ints (int64 once stacked), hence the explicit dtypes
+NUMERIC_FEATURES = {"image": np.uint8, "tokens": np.int32, "loss_mask": np.bool_, "image_mask": np.bool_,
+                    "length": np.int32, "grasp": np.float32, "grasp_mask": np.bool_}
 
 
 def to_arrays(record: Mapping[str, Any], max_answers: int) -> dict[str, np.ndarray]:
     """One stored record -> fixed-shape numpy arrays (answers padded to `max_answers`)."""
-    arrays = {name: np.asarray(record[name]) for name in NUMERIC_FEATURES}
+    arrays = {name: np.asarray(record[name], dtype) for name, dtype in NUMERIC_FEATURES.items()}
     answers = np.asarray(record["answers"], np.float32).reshape(-1, 5)
     if answers.shape[0] > max_answers:
         raise ValueError(f"record with {answers.shape[0]} answer grasps exceeds max_answers={max_answers}")
