@@ -2,6 +2,7 @@
 
 import functools
 import pathlib
+import re
 
 import jax
 import jax.numpy as jnp
@@ -43,17 +44,23 @@ def tokenize(text, vocab):
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
-def constrained_walk(constraint, logits):
-    """Greedy choice under the constraint for fixed random logits [steps, B, V]."""
-    def body(carry, step_logits):
+def constrained_walk(constraint, logits, budget=None):
+    """Greedy choice under the constraint for fixed logits [steps, B, V], `budget` (default: steps)
+    tokens at most."""
+    steps = logits.shape[0]
+    budget = steps if budget is None else budget
+
+    def body(carry, xs):
         cstate, done = carry
-        allowed = constraint.allowed(cstate, step_logits.shape[-1])
+        step_logits, i = xs
+        allowed = constraint.allowed(cstate, step_logits.shape[-1], budget - i)
         token = jnp.argmax(jnp.where(allowed, step_logits, -jnp.inf), axis=-1)
         token = jnp.where(done, 1, token)
         cstate = constraint.advance(cstate, token)
         return (cstate, done | (token == EOS)), token
 
-    _, tokens = jax.lax.scan(body, (constraint.init(logits.shape[1]), jnp.zeros(logits.shape[1], bool)), logits)
+    init = (constraint.init(logits.shape[1]), jnp.zeros(logits.shape[1], bool))
+    _, tokens = jax.lax.scan(body, init, (logits, jnp.arange(steps)))
     return tokens.T
 
 
@@ -63,56 +70,148 @@ def detokenize(ids, vocab):
     return "".join(vocab[i] for i in ids[:ids.index(EOS)])
 
 
-CASES = [("xya", True), ("xya", False), ("xywha", True), ("tlbra", True), ("tlbra_patch", True)]
+CASES = [(r, code) for r in grasp_text.REPRESENTATIONS for code in (True, False)]
+
+
+@pytest.fixture(scope="module")
+def toy_constraints():
+    vocab = toy_vocabulary()
+    return vocab, {case: TokenConstraint(vocab, EOS, case[0], angle_code=case[1]) for case in CASES}
 
 
 @pytest.mark.parametrize("representation,angle_code", CASES)
-def test_random_logits_under_the_constraint_always_give_a_parsable_answer(representation, angle_code):
-    vocab = toy_vocabulary()
-    constraint = TokenConstraint(vocab, EOS, representation, angle_code=angle_code, image_size=224)
-    logits = jax.random.normal(jax.random.key(0), (140, 64, len(vocab)))
-    tokens = np.asarray(constrained_walk(constraint, logits))
-    for row in tokens:
-        text = detokenize(row, vocab)
-        parsed = grasp_text.parse_grasp(text, representation, angle_code=angle_code, image_size=224)
+def test_random_logits_under_the_constraint_always_give_a_parsable_answer(toy_constraints, representation, angle_code):
+    vocab, constraints = toy_constraints
+    constraint = constraints[representation, angle_code]
+    # a generous budget, then exactly the shortest answer's length: every row must still finish
+    logits = jax.random.normal(jax.random.key(0), (3 * constraint.min_tokens, 64, len(vocab)))
+    for budget in (3 * constraint.min_tokens, constraint.min_tokens):
+        for row in np.asarray(constrained_walk(constraint, logits, budget)):
+            text = detokenize(row[:budget], vocab)
+            parsed = grasp_text.parse_grasp(text, representation, angle_code=angle_code, image_size=224)
+            assert parsed.ok, (text, parsed.error)
+
+
+def random_grasps(n: int, representation: str, size: int, seed: int) -> np.ndarray:
+    """Grasps whose text format_grasp writes and parse_grasp accepts (centres in the image, w and h
+    at least a pixel): centres near the edges, boxes beyond the image, tiny and huge w, h, all angles."""
+    rng = np.random.default_rng(seed)
+    edges = np.array([0.0, 0.3, 0.5, size / 2, size - 1.5, size - 1.0])
+    centres = np.where(rng.random((n, 2)) < 0.4, rng.choice(edges, (n, 2)), rng.uniform(0, size - 1, (n, 2)))
+    # TLBRA's box must stay within [-S, 2S] around any centre: half its diagonal below S
+    largest = 1.4 * size if representation == "tlbra" else 2 * size
+    sizes = np.where(rng.random((n, 2)) < 0.3, rng.uniform(1, 2, (n, 2)), rng.uniform(1, largest, (n, 2)))
+    angles = rng.uniform(-np.pi / 2, np.pi / 2, n)
+    angles[:6] = [-np.pi / 2, np.pi / 2 - 1e-4, 0.0, -1e-4, np.pi / 4, np.pi / 2 - np.pi / 512]
+    return np.column_stack([centres, sizes, angles])
+
+
+def character_vocabulary():
+    chars = sorted(set("".join(grasp_text.format_grasp([1, 2, 3, 4, 0.5], r, c) for r, c in CASES))
+                   | set("-.0123456789<>_ "))
+    return SPECIALS + chars
+
+
+@pytest.mark.parametrize("representation,angle_code", CASES)
+def test_every_formatted_answer_is_admitted_char_by_char_and_parses(representation, angle_code):
+    size = 224
+    vocab = character_vocabulary()
+    constraint = TokenConstraint(vocab, EOS, representation, angle_code=angle_code, image_size=size)
+    texts = [" " + grasp_text.format_grasp(g, representation, angle_code=angle_code, image_size=size)
+             for g in random_grasps(300, representation, size, seed=len(representation) + angle_code)]
+    for text in texts:
+        parsed = grasp_text.parse_grasp(text, representation, angle_code=angle_code, image_size=size)
         assert parsed.ok, (text, parsed.error)
+    if representation == "tlbra":  # the box does stick out of the image
+        boxes = np.array([[int(v) for v in re.findall(r"-?\d+", t.split("a_")[0])] for t in texts])
+        assert boxes.min() < -20 and boxes.max() > size + 20
+    index = {ch: i for i, ch in enumerate(vocab)}
+    length = max(map(len, texts)) + 1
+    ids = np.full((len(texts), length), -1, np.int32)  # -1: after the text's EOS
+    for row, text in enumerate(texts):
+        ids[row, :len(text) + 1] = [index[ch] for ch in text] + [EOS]
+    admitted = np.asarray(admission(constraint, jnp.asarray(ids)))
+    for row, text in enumerate(texts):
+        assert admitted[row, :len(text) + 1].all(), (text, text[:int(np.argmin(admitted[row]))])
 
 
-@pytest.mark.parametrize("representation,angle_code", CASES)
-def test_every_formatted_answer_is_admitted(representation, angle_code):
-    vocab = toy_vocabulary()
-    constraint = TokenConstraint(vocab, EOS, representation, angle_code=angle_code, image_size=224)
-    step = jax.jit(lambda cstate, token: (constraint.allowed(cstate, len(vocab))[0], constraint.advance(cstate, token)))
-    rng = np.random.default_rng(1)
-    for _ in range(15):
-        grasp = [rng.uniform(40, 180), rng.uniform(40, 180), rng.uniform(10, 60), rng.uniform(5, 30), rng.uniform(-1.5, 1.5)]
-        text = " " + grasp_text.format_grasp(grasp, representation, angle_code=angle_code, image_size=224)
-        cstate = constraint.init(1)
-        for token in tokenize(text, vocab):
-            allowed, cstate = step(cstate, jnp.asarray([token]))
-            assert bool(allowed[token]), (text, vocab[token])
-        allowed, _ = step(cstate, jnp.asarray([EOS]))
-        assert bool(allowed[EOS]), text
+@functools.partial(jax.jit, static_argnums=(0,))
+def admission(constraint, ids):
+    """[N, L] bool: was each token of the rows (-1 = none) allowed with a budget of L tokens?"""
+    def body(cstate, xs):
+        token, i = xs
+        allowed = constraint.allowed(cstate, constraint.vocab_size, ids.shape[1] - i)
+        ok = jnp.take_along_axis(allowed, jnp.maximum(token, 0)[:, None], axis=1)[:, 0] | (token < 0)
+        return constraint.advance(cstate, jnp.where(token < 0, 1, token)), ok
+
+    _, ok = jax.lax.scan(body, constraint.init(ids.shape[0]), (ids.T, jnp.arange(ids.shape[1])))
+    return ok.T
 
 
-def test_order_relations_are_enforced():
-    vocab = toy_vocabulary()
-    constraint = TokenConstraint(vocab, EOS, "tlbra")
-    cstate = constraint.init(1)
-    for token in tokenize("Grasp bounding box: x_150,y_30,x_", vocab):
-        cstate = constraint.advance(cstate, jnp.asarray([token]))
-    allowed = np.asarray(constraint.allowed(cstate, len(vocab))[0])
-    assert allowed[vocab.index("2")] and not allowed[vocab.index("0")]  # 2xx can reach >= 150; "0" cannot
-    assert allowed[vocab.index("1")]  # 15x.. still possible
-    assert not allowed[vocab.index("12")]  # 12 and 12x are < 150 or > 223
-    patch = TokenConstraint(vocab, EOS, "tlbra_patch")
-    cstate = patch.init(1)
-    for token in tokenize("Grasp bounding box: <patch_index_0100>", vocab):  # row 3, column 4
-        cstate = patch.advance(cstate, jnp.asarray([token]))
-    allowed = np.asarray(patch.allowed(cstate, len(vocab))[0])
+def allowed_after(constraint, prefix, vocab):
+    """The tokens allowed after `prefix` (padded with -1 to a fixed length: one compilation)."""
+    ids = np.full((1, 40), -1, np.int32)
+    tokens = tokenize(prefix, vocab)
+    ids[0, :len(tokens)] = tokens
+    return np.asarray(_allowed_after(constraint, jnp.asarray(ids)))[0]
+
+
+@functools.partial(jax.jit, static_argnums=(0,))
+def _allowed_after(constraint, ids):
+    def body(cstate, token):
+        return constraint.advance(cstate, jnp.where(token < 0, 1, token)), None  # the pad id leaves the state
+
+    cstate, _ = jax.lax.scan(body, constraint.init(ids.shape[0]), ids.T)
+    return constraint.allowed(cstate, constraint.vocab_size, 100)
+
+
+def test_order_relations_are_enforced(toy_constraints):
+    vocab, constraints = toy_constraints
+    box = constraints["tlbra", True]
+    allowed = allowed_after(box, "Grasp bounding box: x_150,y_30,x_", vocab)  # x2 in [150, 297]
+    assert allowed[vocab.index("2")] and allowed[vocab.index("1")]  # 2xx, 15x..19x
+    assert not allowed[vocab.index("0")] and not allowed[vocab.index("12")]  # 0, 12, 12x < 150
+    assert not allowed[vocab.index("3")]  # 3, 3x < 150 and 3xx puts the middle past the image
+    allowed = allowed_after(box, "Grasp bounding box: x_3", vocab)  # x1 = 300 leaves no x2
+    assert allowed[vocab.index("0")] and not allowed[vocab.index("00")]
+    allowed = allowed_after(box, "Grasp bounding box: x_-19,y_", vocab)  # negative corners are fine
+    assert allowed[vocab.index("22")] and allowed[vocab.index("-")]
+    patch = constraints["tlbra_patch", True]
+    allowed = allowed_after(patch, "Grasp bounding box: <patch_index_0100>", vocab)  # row 3, column 4
     assert allowed[vocab.index("<patch_index_0101>")] and allowed[vocab.index("<patch_index_0132>")]
     assert not allowed[vocab.index("<patch_index_0099>")]  # column 3 < 4
     assert not allowed[vocab.index("<patch_index_0068>")]  # row 2 < 3
+
+
+def test_no_token_leads_into_a_state_with_no_way_out():
+    answer = " " + grasp_text.format_grasp([100, 50, 30, 20, 0.3])
+    vocab = SPECIALS + [" Grasp c", answer]
+    constraint = TokenConstraint(vocab, EOS, "xya")
+    assert constraint.min_tokens == 2
+    logits = jnp.zeros((5, 1, len(vocab))).at[:, :, 4].set(10.0)  # the model prefers the dead end
+    row = np.asarray(constrained_walk(constraint, logits))[0]
+    assert detokenize(row, vocab) == answer
+
+
+def test_the_shortest_answer_is_counted_exactly(toy_constraints):
+    vocab, constraints = toy_constraints
+    angle = [" Grasp", " rotation", " angle", " in", " radians", ":", " a_", "57"]
+    shortest = {  # found by hand; EOS comes on top
+        "xya": ["Grasp center", " point", " coordinates", ":", " x", "_", "1,y_2", *angle],
+        "tlbra_patch": [" Grasp", " bounding", " box", ":", " ", "<patch_index_0012>", "<patch_index_1023>", *angle],
+    }
+    for representation, words in shortest.items():
+        assert constraints[representation, True].min_tokens == len(words) + 1
+        assert grasp_text.parse_grasp("".join(words), representation).ok
+
+
+def test_a_vocabulary_that_cannot_spell_an_answer_is_refused():
+    with pytest.raises(ValueError, match="no token"):
+        TokenConstraint(SPECIALS + ["hello", "world"], EOS, "xya")
+    # every piece of the answer is there but the angle's digits: refused at construction, by name
+    vocab = [t for t in toy_vocabulary() if not re.fullmatch(r"[-.\d]+", t) or t in ("1,y_2",)]
+    with pytest.raises(ValueError, match="whole xya answer"):
+        TokenConstraint(vocab, EOS, "xya")
 
 
 def test_constrained_generation_with_the_model_parses():
@@ -125,13 +224,12 @@ def test_constrained_generation_with_the_model_parses():
     constraint = TokenConstraint(vocab, EOS, "xya", image_size=224)
     args = (jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
             jnp.asarray(ref["image_embeds_position_mask"], bool), jnp.asarray(ref["image_embeds"]))
-    tokens = np.asarray(decode.generate(model, *args, max_new_tokens=100, constraint=constraint))
     free = np.asarray(decode.generate(model, *args, max_new_tokens=10))
     assert not all(grasp_text.parse_grasp("".join(vocab[i] for i in row)).ok for row in free)
-    for row in tokens:
-        assert grasp_text.parse_grasp(detokenize(row, vocab), "xya").ok
+    for budget in (100, constraint.min_tokens):
+        tokens = np.asarray(decode.generate(model, *args, max_new_tokens=budget, constraint=constraint))
+        for row in tokens:
+            assert grasp_text.parse_grasp(detokenize(row, vocab), "xya").ok
+    with pytest.raises(ValueError, match=f"too few.*{constraint.min_tokens} tokens"):
+        decode.generate(model, *args, max_new_tokens=constraint.min_tokens - 1, constraint=constraint)
 
-
-def test_a_vocabulary_that_cannot_spell_an_answer_is_refused():
-    with pytest.raises(ValueError, match="no token"):
-        TokenConstraint(SPECIALS + ["hello", "world"], EOS, "xya")

@@ -1,18 +1,21 @@
 """Constrained decoding: a finite-state machine over token strings that only admits grasp answers.
 
 The answer templates come from kosmos_jax.grasp_text. A template is split into literal text and
-number fields; each field has a finite set of allowed spellings (x in 0..image_size-1, angle codes
-0..255, zero-padded patch indices, ...), so the answer language is regular. A character-level
-automaton (trie nodes for fields, offsets for literals) is run over every token's string to get a
-token-level transition table, kept only for the tokens alive from some state.
+number fields; each field has a finite set of allowed spellings, exactly the values
+`grasp_text.parse_grasp` accepts (`field_domains`), so the answer language is regular. A
+character-level automaton (trie nodes for fields, offsets for literals) is run over every token's
+string to get a token-level transition table.
 
-Orderings the parser demands but a small automaton cannot hold (TLBRA: x2 >= x1 and y2 >= y1;
-TLBRA-patch: the lower-right patch not left of or above the upper-left one) use registers: the
-value of a completed field is stored, and a token entering or completing a dependent field is
-allowed only if some completion still satisfies the relation.
+Orderings the parser demands but a small automaton cannot hold (TLBRA: x1 <= x2 with the box's
+middle inside the image; TLBRA-patch: the lower-right patch not left of or above the upper-left
+one) use registers: the value of a completed field is stored, and the token-level costs of
+kosmos_jax.models.grammar_budget take it into account.
 
-Tokenizer-agnostic: give the text of every token id (SentencePiece's '▁' already turned into a
-space) and the EOS id. Tokens spanning two whole fields are not used.
+At every step a token is allowed only if a complete answer (EOS included) still fits in the tokens
+left after it, so no state without a way out is ever entered and every answer ends in time: every
+answer parses. Tokenizer-agnostic: give the text of every token id (`token_texts` for this
+project's SentencePiece tokenizers) and the EOS id. A token that completes two fields is not used
+up to the last field of an order relation (a register holds one value per token).
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ from collections.abc import Sequence
 
 import jax.numpy as jnp
 import numpy as np
+import sentencepiece as spm
 
 from kosmos_jax import grasp_text
+from kosmos_jax.models import grammar_budget as budget
 
 _FIELD_RE = re.compile(r"\{(\w+)(?::[^}]*)?\}")
 
@@ -33,14 +38,14 @@ _FIELD_RE = re.compile(r"\{(\w+)(?::[^}]*)?\}")
 class Field:
     name: str
     spellings: tuple[str, ...]  # every allowed spelling
-    values: tuple[int, ...]  # the value of each spelling (an index into the relation domain)
+    values: tuple[int, ...]  # the number each spelling writes (hundredths for radians)
 
 
 @dataclasses.dataclass(frozen=True)
 class Relation:
-    lower: str  # field whose value must come first
+    lower: str  # field whose value comes first
     upper: str
-    kind: str  # "ge": upper >= lower; "patch": upper's row and column >= lower's
+    kind: str  # "box": lower <= upper, their mean inside the image; "patch": upper's row and column >= lower's
 
 
 def answer_template(representation: str) -> str:
@@ -59,32 +64,36 @@ def _ints(name, lo, hi, width=0):
 
 
 def field_domains(representation: str, angle_code: bool, image_size: int) -> dict[str, Field]:
-    """Spellings the parser accepts (kept to values inside the image for box corners)."""
+    """Exactly the values parse_grasp accepts, each field alone (relations restrict them jointly):
+    centre 0..S-1; w, h 1..2S; box corners -S..2S; patch indices 0..1023 in four digits; angle codes
+    0..255, or radians with two decimals in [-pi/2, pi/2] ("-0.00" included, as format_angle writes it)."""
     last = image_size - 1
     cells = grasp_text.PATCH_GRID * grasp_text.PATCH_GRID
-    fields = {n: _ints(n, 0, last) for n in ("x", "y", "x1", "y1", "x2", "y2")}
+    fields = {n: _ints(n, 0, last) for n in ("x", "y")}
+    fields.update({n: _ints(n, -image_size, 2 * image_size) for n in ("x1", "y1", "x2", "y2")})
     fields.update(w=_ints("w", 1, 2 * image_size), h=_ints("h", 1, 2 * image_size))
     fields.update(ul=_ints("ul", 0, cells - 1, 4), lr=_ints("lr", 0, cells - 1, 4))
     if angle_code:
         fields["a"] = _ints("a", 0, 255)
-    else:  # radians with two decimals in [-pi/2, pi/2], as format_angle writes them
-        hundredths = range(-157, 158)
-        spellings = tuple(f"{v / 100:.2f}" for v in hundredths) + ("-0.00",)
-        fields["a"] = Field("a", spellings, tuple(range(len(spellings))))
+    else:
+        hundredths = tuple(range(-157, 158))
+        fields["a"] = Field("a", tuple(f"{v / 100:.2f}" for v in hundredths) + ("-0.00",), hundredths + (0,))
     return fields
 
 
 def relations(representation: str) -> tuple[Relation, ...]:
     if representation == "tlbra":
-        return (Relation("x1", "x2", "ge"), Relation("y1", "y2", "ge"))
+        return (Relation("x1", "x2", "box"), Relation("y1", "y2", "box"))
     if representation == "tlbra_patch":
         return (Relation("ul", "lr", "patch"),)
     return ()
 
 
-def _relation_holds(kind: str, lower, upper):
-    if kind == "ge":
-        return upper >= lower
+def relation_holds(kind: str, lower, upper, image_size: int):
+    """May `upper` follow `lower` (numbers, broadcast)? As parse_grasp checks the pair."""
+    if kind == "box":  # ordered corners whose middle (lower + upper) / 2 lies in [0, S)
+        total = lower + upper
+        return (upper >= lower) & (total >= 0) & (total <= 2 * image_size - 1)
     grid = grasp_text.PATCH_GRID
     return (upper % grid >= lower % grid) & (upper // grid >= lower // grid)
 
@@ -101,14 +110,13 @@ class _CharMachine:
         pieces = [p for p in [*pieces, template[pos:]] if p != ""]
         if any(isinstance(a, Field) and isinstance(b, Field) for a, b in zip(pieces, pieces[1:])):
             raise ValueError(f"template {template!r} has two adjacent fields")
-        self.field_names = [p.name for p in pieces if isinstance(p, Field)]
-        self.alphabet = sorted(set(template) | set(optional_prefix) |
-                               {c for p in pieces if isinstance(p, Field) for s in p.spellings for c in s})
+        self.fields = [p for p in pieces if isinstance(p, Field)]
+        self.alphabet = sorted(set(optional_prefix).union(*(p for p in pieces if isinstance(p, str)),
+                                                          *(s for f in self.fields for s in f.spellings)))
         self.char_index = {c: i for i, c in enumerate(self.alphabet)}
-        self.edges: dict[tuple[int, str], tuple[int, int, int]] = {}  # (state, char) -> (state, field, value)
+        self.edges: dict[tuple[int, str], tuple[int, int, int]] = {}  # (state, char) -> (state, field, value index)
         self.n_states = 2
-        self.field_of_state: dict[int, int] = {}  # state inside a field -> field index
-        self.completions: dict[int, set[int]] = {}  # state inside a field -> values still reachable
+        self.inside_value: set[int] = set()  # trie nodes past a field's entry: some digits of a value read
         self.accepting: set[int] = set()
         entry = self._build(pieces)
         self._copy_edges(entry, 1)
@@ -130,14 +138,11 @@ class _CharMachine:
                 self.edges[(target, ch)] = edge
         if source in self.accepting:
             self.accepting.add(target)
-        if source in self.field_of_state:
-            self.field_of_state[target] = self.field_of_state[source]
-            self.completions[target] = self.completions[source]
 
     def _build(self, pieces) -> int:
         """States from the last piece backwards; returns the entry state of the first piece."""
         after = None  # entry state of the piece after the current one (None: end of the answer)
-        field_index = len(self.field_names)
+        field_index = len(self.fields)
         for piece in reversed(pieces):
             if isinstance(piece, str):
                 states = [self._new() for _ in piece]
@@ -151,23 +156,21 @@ class _CharMachine:
                 continue
             field_index -= 1
             nodes = {"": self._new()}
-            value_of = dict(zip(piece.spellings, piece.values))
-            for spelling, value in value_of.items():
+            index_of = {spelling: i for i, spelling in enumerate(piece.spellings)}
+            for spelling in piece.spellings:
                 for k in range(1, len(spelling) + 1):
                     if spelling[:k] not in nodes:
                         nodes[spelling[:k]] = self._new()
                         self.edges[(nodes[spelling[:k - 1]], spelling[k - 1])] = (nodes[spelling[:k]], -1, -1)
-                for k in range(len(spelling) + 1):
-                    self.completions.setdefault(nodes[spelling[:k]], set()).add(value)
+            self.inside_value.update(node for prefix, node in nodes.items() if prefix)
             for prefix, node in nodes.items():
-                self.field_of_state[node] = field_index
-                if prefix not in value_of:
+                if prefix not in index_of:
                     continue
                 if after is None:
                     self.accepting.add(node)
                 else:  # the first char of the next literal ends the field
                     target = self.edges[(after, after_first)][0]
-                    self.edges[(node, after_first)] = (target, field_index, value_of[prefix])
+                    self.edges[(node, after_first)] = (target, field_index, index_of[prefix])
             after = nodes[""]
         return after
 
@@ -180,12 +183,78 @@ class _CharMachine:
             nxt[src, a], field[src, a], value[src, a] = dst, f, v
         return nxt, field, value
 
+    def run_tokens(self, tokens: Sequence[tuple[str, int]], last_stored: int):
+        """Run every (text, id) from every state: (ids [R] of the tokens alive from some state,
+        next state [S, R] (0 = dead), completed field [S, R] (-1 none; the last one if several),
+        completed value [S, R]). A token completing several fields is kept only where none of them
+        is stored in a register (index <= last_stored): a register takes one value per token.
+        Texts are visited sorted so that a shared prefix is run once."""
+        char_next, char_field, char_value = self.table()
+        n = self.n_states
+        none = np.full(n, -1, np.int32)
+        start = (np.arange(n), none, none, none, np.zeros(n, np.int32))
+        stack, previous = [start], ""  # stack[d]: the runs after the first d chars of `previous`
+        ids, columns = [], []
+        for text, token_id in sorted(t for t in tokens if t[0] and all(ch in self.char_index for ch in t[0])):
+            common = 0
+            while common < min(len(text), len(previous)) and text[common] == previous[common]:
+                common += 1
+            del stack[common + 1:]
+            for ch in text[common:]:
+                states, first, field, value, completed = stack[-1]
+                a = self.char_index[ch]
+                done = char_field[states, a] >= 0
+                stack.append((char_next[states, a], np.where(done & (first < 0), char_field[states, a], first),
+                              np.where(done, char_field[states, a], field),
+                              np.where(done, char_value[states, a], value), completed + done))
+            previous = text
+            states, first, field, value, completed = stack[-1]
+            states = np.where((completed > 1) & (first <= last_stored), 0, states)
+            if states[1:].any():
+                ids.append(token_id)
+                columns.append((states, field, value))
+        if not ids:
+            return np.zeros(0, np.int32), *(np.zeros((n, 0), np.int32) for _ in range(3))
+        order = np.argsort(ids)  # columns in id order
+        return (np.asarray(ids, np.int32)[order],
+                *(np.stack([columns[i][j] for i in order], axis=1).astype(np.int32) for j in range(3)))
+
+    def phase_and_order(self):
+        """(phase [S]: index of the next field to complete, -1 if unreachable; the reachable states
+        in topological order). Every path to a state completes the same number of fields."""
+        successors: dict[int, list[tuple[int, int]]] = {}
+        for (src, _), (dst, f, _) in self.edges.items():
+            successors.setdefault(src, []).append((dst, f))
+        stack, reachable = [1], {1}
+        while stack:
+            for dst, _ in successors.get(stack.pop(), []):
+                if dst not in reachable:
+                    reachable.add(dst)
+                    stack.append(dst)
+        indegree = np.zeros(self.n_states, np.int32)
+        for src in reachable:
+            for dst, _ in successors.get(src, []):
+                indegree[dst] += 1
+        phase = np.full(self.n_states, -1, np.int32)
+        phase[1] = 0
+        order, ready = [], [1]
+        while ready:  # Kahn's algorithm
+            src = ready.pop()
+            order.append(src)
+            for dst, f in successors.get(src, []):
+                phase[dst] = phase[src] + (f >= 0)
+                indegree[dst] -= 1
+                if indegree[dst] == 0:
+                    ready.append(dst)
+        return phase, np.asarray(order, np.int64)
+
 
 class TokenConstraint:
     """The answer grammar over token ids, usable inside jit (see decode.generate's `constraint`).
 
-    State per row: {"state": automaton state, "reg": values of completed fields}. EOS is allowed
-    exactly in accepting states.
+    State per row: {"state": automaton state, "reg": spelling index of the completed fields}. EOS
+    is allowed exactly in accepting states; another token only if the answer can still be completed
+    within the tokens left after it. `min_tokens`: the fewest tokens of a whole answer, EOS included.
     """
 
     def __init__(self, token_texts: Sequence[str], eos_id: int, representation: str = "xya", *,
@@ -194,88 +263,53 @@ class TokenConstraint:
         self.eos_id, self.vocab_size = eos_id, len(token_texts)
         fields = field_domains(representation, angle_code, image_size)
         machine = _CharMachine(answer_template(representation), fields, optional_prefix)
-        self.field_names = machine.field_names
-        char_next, char_field, char_value = machine.table()
+        self.field_names = [f.name for f in machine.fields]
         n_states = machine.n_states
-
-        ids, finals, stored_fields, stored_values = [], [], [], []
-        all_states = np.arange(n_states)
-        for token_id, text in enumerate(token_texts):
-            if token_id == eos_id or not text or any(ch not in machine.char_index for ch in text):
-                continue
-            states = all_states.copy()
-            field = np.full(n_states, -1, np.int32)
-            value = np.full(n_states, -1, np.int32)
-            completed = np.zeros(n_states, np.int32)
-            for ch in text:
-                a = machine.char_index[ch]
-                done = char_field[states, a] >= 0
-                completed += done
-                field = np.where(done, char_field[states, a], field)
-                value = np.where(done, char_value[states, a], value)
-                states = char_next[states, a]
-            states = np.where(completed > 1, 0, states)  # a token spanning two whole fields: unused
-            if states[1:].any():
-                ids.append(token_id), finals.append(states), stored_fields.append(field), stored_values.append(value)
-        if not ids:
+        index = {name: i for i, name in enumerate(self.field_names)}
+        stored = [index[name] for r in relations(representation) for name in (r.lower, r.upper)]
+        ids, trans, store_field, store_value = machine.run_tokens(
+            [(text, i) for i, text in enumerate(token_texts) if i != eos_id], max(stored, default=-1))
+        if not ids.size:
             raise ValueError(f"no token of the vocabulary can start or continue a {representation} answer")
         self.token_ids = np.asarray(ids, np.int32)  # [R]
-        self.trans = np.stack(finals, axis=1).astype(np.int32)  # [S, R], 0 = dead
-        self.store_field = np.stack(stored_fields, axis=1)
-        self.store_value = np.stack(stored_values, axis=1)
+        self.trans, self.store_field, self.store_value = trans, store_field, store_value  # [S, R]; trans 0 = dead
         self.column_of_token = np.full(self.vocab_size, -1, np.int32)
-        self.column_of_token[self.token_ids] = np.arange(len(ids))
+        self.column_of_token[self.token_ids] = np.arange(ids.size)
         self.accepting = np.zeros(n_states, bool)
         self.accepting[list(machine.accepting)] = True
 
-        # registers for order relations between fields
-        self.relations = relations(representation)
-        index = {name: i for i, name in enumerate(self.field_names)}
-        self.rel_lower = np.asarray([index[r.lower] for r in self.relations] or [0], np.int32)
-        self.relation_kinds = {r.kind for r in self.relations}
-        upper_rel = np.full(len(self.field_names), -1, np.int32)
-        for k, rel in enumerate(self.relations):
-            upper_rel[index[rel.upper]] = k
-        field_of_state = np.full(n_states, -1, np.int32)
-        for state, f in machine.field_of_state.items():
-            field_of_state[state] = f
-        domain = max([len(fields[r.upper].spellings) for r in self.relations] or [1])
-        self.completable = np.zeros((n_states, domain), bool)
-        for state, values in machine.completions.items():
-            if field_of_state[state] >= 0 and upper_rel[field_of_state[state]] >= 0:
-                self.completable[state, sorted(values)] = True
-        completes_upper = (self.store_field >= 0) & (upper_rel[np.maximum(self.store_field, 0)] >= 0)
-        inside_upper = (field_of_state[self.trans] >= 0) & (upper_rel[np.maximum(field_of_state[self.trans], 0)] >= 0)
-        self.check_kind = np.where(completes_upper, 2, np.where(inside_upper & (self.trans > 0), 1, 0)).astype(np.int32)
-        self.check_rel = np.where(completes_upper, upper_rel[np.maximum(self.store_field, 0)],
-                                  np.where(inside_upper, upper_rel[np.maximum(field_of_state[self.trans], 0)], 0))
-        self.check_rel = np.maximum(self.check_rel, 0).astype(np.int32)
+        phase, order = machine.phase_and_order()
+        neutral = np.ones(n_states, bool)
+        neutral[list(machine.inside_value)] = False
+        automaton = budget.Automaton(self.trans, self.store_field, self.store_value, self.accepting, phase, order,
+                                     neutral, tuple(len(f.spellings) for f in machine.fields))
+        pairs = tuple(
+            budget.Relation(index[r.lower], index[r.upper], relation_holds(
+                r.kind, np.asarray(fields[r.lower].values)[:, None], np.asarray(fields[r.upper].values)[None, :],
+                image_size))
+            for r in relations(representation))
+        self.tables = budget.tables(automaton, pairs)
+        self.min_tokens = self.tables.min_tokens
+        if self.min_tokens >= budget.INF:
+            raise ValueError(f"no sequence of the vocabulary's tokens spells a whole {representation} answer "
+                             f"(angle_code={angle_code}, image_size={image_size})")
 
     # -- the interface decode.generate uses -----------------------------------------------------
     def init(self, batch: int):
         return {"state": jnp.ones((batch,), jnp.int32), "reg": jnp.zeros((batch, len(self.field_names)), jnp.int32)}
 
-    def _holds(self, lower, upper):
-        (kind,) = self.relation_kinds
-        return _relation_holds(kind, lower, upper)
-
-    min_tokens = 0
-
-    def allowed(self, cstate, vocab_size: int, remaining=None) -> jnp.ndarray:
+    def allowed(self, cstate, vocab_size: int, remaining) -> jnp.ndarray:
+        """[B, V] bool; `remaining`: tokens the row may still emit, this one included."""
         if vocab_size != self.vocab_size:
             raise ValueError(f"constraint built for {self.vocab_size} tokens, model has {vocab_size}")
-        s = cstate["state"]
+        s, reg = cstate["state"], cstate["reg"]
         nxt = jnp.asarray(self.trans)[s]  # [B, R]
-        ok = nxt > 0
-        if self.relations:
-            kind, rel = jnp.asarray(self.check_kind)[s], jnp.asarray(self.check_rel)[s]
-            lower = jnp.take_along_axis(cstate["reg"], jnp.asarray(self.rel_lower)[rel], axis=1)
-            done_ok = self._holds(lower, jnp.asarray(self.store_value)[s])
-            domain = jnp.arange(self.completable.shape[1])
-            partial_ok = jnp.any(jnp.asarray(self.completable)[nxt] & self._holds(lower[..., None], domain), axis=-1)
-            ok &= jnp.where(kind == 2, done_ok, jnp.where(kind == 1, partial_ok, True))
+        field, value = jnp.asarray(self.store_field)[s], jnp.asarray(self.store_value)[s]
+        needed = budget.tokens_needed(self.tables, nxt, field, value, reg)
+        ok = (nxt > 0) & (needed <= remaining - 1) & budget.completion_allowed(self.tables, field, value, reg)
         mask = jnp.zeros((s.shape[0], vocab_size), bool).at[:, jnp.asarray(self.token_ids)].set(ok)
-        eos = jnp.asarray(self.accepting)[s] | ~jnp.any(mask, axis=1)  # never leave a row with no choice
+        # a row with no choice only arises when called with fewer tokens left than the answer needs
+        eos = jnp.asarray(self.accepting)[s] | ~jnp.any(mask, axis=1)
         return mask.at[:, self.eos_id].set(eos)
 
     def advance(self, cstate, tokens):
@@ -290,3 +324,22 @@ class TokenConstraint:
 
     def finished(self, cstate):
         return jnp.zeros(cstate["state"].shape, bool)
+
+
+def token_texts(tokenizer) -> list[str]:
+    """The text of every model id of a kosmos_jax.text.tokenizer.Tokenizer, as TokenConstraint takes
+    it: '▁' as a space, a byte piece as its character when ASCII, '' for control pieces, non-ASCII
+    bytes and ids without a piece (fairseq's <pad> and <mask>)."""
+    processor = spm.SentencePieceProcessor(model_proto=tokenizer.model_proto)
+    texts = [""] * tokenizer.vocab_size
+    for piece_id in range(processor.get_piece_size()):
+        if processor.is_control(piece_id) or processor.is_unknown(piece_id):
+            continue
+        piece = processor.id_to_piece(piece_id)
+        if processor.is_byte(piece_id):
+            byte = int(piece[3:5], 16)
+            text = chr(byte) if byte < 0x80 else ""
+        else:
+            text = piece.replace("\u2581", " ")
+        texts[tokenizer.token_id(piece)] = text
+    return texts
