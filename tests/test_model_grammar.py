@@ -11,7 +11,8 @@ import pytest
 
 from kosmos_jax import grasp_text
 from kosmos_jax.models import decode, weights
-from kosmos_jax.models.grammar import TokenConstraint
+from kosmos_jax.models.grammar import TokenConstraint, answer_template
+from kosmos_jax.text import formatter
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 SPECIALS = ["<s>", "<pad>", "</s>", "<unk>"]
@@ -79,6 +80,13 @@ def toy_constraints():
     return vocab, {case: TokenConstraint(vocab, EOS, case[0], angle_code=case[1]) for case in CASES}
 
 
+@pytest.fixture(scope="module")
+def toy_part_constraints():
+    """Location values of the representations with order relations, on their last field too."""
+    vocab = toy_vocabulary()
+    return vocab, {r: TokenConstraint(vocab, EOS, r, part="location") for r in ("tlbra", "tlbra_patch")}
+
+
 @pytest.mark.parametrize("representation,angle_code", CASES)
 def test_random_logits_under_the_constraint_always_give_a_parsable_answer(toy_constraints, representation, angle_code):
     vocab, constraints = toy_constraints
@@ -112,27 +120,64 @@ def character_vocabulary():
     return SPECIALS + chars
 
 
-@pytest.mark.parametrize("representation,angle_code", CASES)
-def test_every_formatted_answer_is_admitted_char_by_char_and_parses(representation, angle_code):
-    size = 224
+PART_CASES = [(r, code, part) for r in grasp_text.REPRESENTATIONS for code in (True, False)
+              for part in formatter.PARTS]
+
+
+@pytest.mark.parametrize("representation,angle_code,part", PART_CASES)
+def test_every_formatted_value_is_admitted_char_by_char_and_parses(representation, angle_code, part):
+    """The values formatter writes for `part` (the whole answer in joint mode, the value after the
+    cue in individual mode), each spelled as layout's tokens spell its segment: a leading space,
+    or none (both are admitted), then EOS."""
+    config = formatter.FormatConfig(representation, angle_code, individual=part != "grasp", image_size=224)
     vocab = character_vocabulary()
-    constraint = TokenConstraint(vocab, EOS, representation, angle_code=angle_code, image_size=size)
-    texts = [" " + grasp_text.format_grasp(g, representation, angle_code=angle_code, image_size=size)
-             for g in random_grasps(300, representation, size, seed=len(representation) + angle_code)]
-    for text in texts:
-        parsed = grasp_text.parse_grasp(text, representation, angle_code=angle_code, image_size=size)
+    constraint = TokenConstraint.for_part(vocab, EOS, config, part)
+    grasps = random_grasps(300, representation, config.image_size, seed=len(representation) + angle_code)
+    examples = [next((cue, value) for p, cue, value, _ in formatter.grasp_parts(g, "grasp", config) if p == part)
+                for g in grasps]
+    for cue, value in examples:
+        text = f"{cue} {value}" if cue else value
+        parsed = formatter.parse_target(text, part, config)
         assert parsed.ok, (text, parsed.error)
-    if representation == "tlbra":  # the box does stick out of the image
-        boxes = np.array([[int(v) for v in re.findall(r"-?\d+", t.split("a_")[0])] for t in texts])
-        assert boxes.min() < -20 and boxes.max() > size + 20
-    index = {ch: i for i, ch in enumerate(vocab)}
-    length = max(map(len, texts)) + 1
-    ids = np.full((len(texts), length), -1, np.int32)  # -1: after the text's EOS
-    for row, text in enumerate(texts):
-        ids[row, :len(text) + 1] = [index[ch] for ch in text] + [EOS]
-    admitted = np.asarray(admission(constraint, jnp.asarray(ids)))
+    values = [value for _, value in examples]
+    if representation == "tlbra" and part != "angle":  # the box does stick out of the image
+        boxes = np.array([[int(v) for v in re.findall(r"-?\d+", t.split("a_")[0])] for t in values])
+        assert boxes.min() < -20 and boxes.max() > config.image_size + 20
+    texts = [" " * (row % 2 == 0) + value for row, value in enumerate(values)]
+    admitted = np.asarray(admission(constraint, spelled(texts, vocab)))
     for row, text in enumerate(texts):
         assert admitted[row, :len(text) + 1].all(), (text, text[:int(np.argmin(admitted[row]))])
+
+
+def spelled(texts, vocab, length=None):
+    """[N, L] ids of the texts character by character, then EOS, then -1 (nothing)."""
+    index = {ch: i for i, ch in enumerate(vocab)}
+    ids = np.full((len(texts), length or max(map(len, texts)) + 1), -1, np.int32)
+    for row, text in enumerate(texts):
+        ids[row, :len(text) + 1] = [index[ch] for ch in text] + [EOS]
+    return jnp.asarray(ids)
+
+
+def test_a_part_admits_its_value_only():
+    vocab = character_vocabulary()
+    location = TokenConstraint(vocab, EOS, "xya", part="location")
+    angle = TokenConstraint(vocab, EOS, "xya", part="angle")
+    ok = lambda constraint, text: bool(np.asarray(admission(constraint, spelled([text], vocab, 48))).all())  # noqa: E731
+    assert ok(location, " x_12,y_3") and ok(angle, " a_77")
+    assert not ok(location, " Grasp center point coordinates: x_12,y_3")  # the cue is the prompt's
+    assert not ok(location, "  x_12,y_3")  # one leading space at most
+    assert not ok(location, " x_12,y_3 ")  # EOS right after the value
+    assert not ok(location, " x_224,y_3") and not ok(angle, " a_256")
+    assert not ok(location, " a_77") and not ok(angle, " x_12,y_3")
+
+
+def test_an_unknown_part_is_refused():
+    with pytest.raises(ValueError, match=r"unknown answer part 'centre'; expected one of \('grasp', 'location'"):
+        TokenConstraint(character_vocabulary(), EOS, "xya", part="centre")
+    with pytest.raises(ValueError, match="unknown answer part 'value'"):
+        TokenConstraint.for_part(character_vocabulary(), EOS, formatter.FormatConfig(), "value")
+    with pytest.raises(ValueError, match="unknown answer part"):
+        answer_template("xya", "Location")
 
 
 @functools.partial(jax.jit, static_argnums=(0,))
@@ -183,6 +228,40 @@ def test_order_relations_are_enforced(toy_constraints):
     assert not allowed[vocab.index("<patch_index_0068>")]  # row 2 < 3
 
 
+def test_order_relations_hold_up_to_a_values_last_field(toy_part_constraints):
+    """In a location value the relation's upper field is the last one: EOS completes it."""
+    vocab, constraints = toy_part_constraints
+    eos = lambda allowed: bool(allowed[EOS])  # noqa: E731
+    box = constraints["tlbra"]
+    assert not eos(allowed_after(box, " x_150,y_30,x_200,y_3", vocab))  # y2 = 3 < y1
+    assert allowed_after(box, " x_150,y_30,x_200,y_3", vocab)[vocab.index("0")]
+    assert eos(allowed_after(box, " x_150,y_30,x_200,y_30", vocab))
+    allowed = allowed_after(box, " x_150,y_30,x_29", vocab)  # x2's middle with x1 inside: x2 <= 297
+    assert allowed[vocab.index("7")] and not allowed[vocab.index("8")] and not eos(allowed)
+    patch = constraints["tlbra_patch"]
+    allowed = allowed_after(patch, " <patch_index_0100>", vocab)
+    assert allowed[vocab.index("<patch_index_0101>")] and not allowed[vocab.index("<patch_index_0099>")]
+    assert not eos(allowed)
+    assert eos(allowed_after(patch, " <patch_index_0100><patch_index_0132>", vocab))
+
+
+@pytest.mark.parametrize("representation", ["tlbra", "tlbra_patch"])
+def test_random_logits_give_parsable_location_values(toy_part_constraints, representation):
+    vocab, constraints = toy_part_constraints
+    constraint = constraints[representation]
+    config = formatter.FormatConfig(representation)
+    cue = dict(formatter.prompt_cues(config))["location"]
+    logits = jax.random.normal(jax.random.key(1), (3 * constraint.min_tokens, 64, len(vocab)))
+    values = set()
+    for budget in (3 * constraint.min_tokens, constraint.min_tokens):
+        for row in np.asarray(constrained_walk(constraint, logits, budget)):
+            value = detokenize(row[:budget], vocab).removeprefix(" ")
+            parsed = formatter.parse_target(f"{cue} {value}", "location", config)
+            assert parsed.ok, (value, parsed.error)
+            values.add(value)
+    assert len(values) > 10
+
+
 def test_no_token_leads_into_a_state_with_no_way_out():
     answer = " " + grasp_text.format_grasp([100, 50, 30, 20, 0.3])
     vocab = SPECIALS + [" Grasp c", answer]
@@ -210,8 +289,10 @@ def test_a_vocabulary_that_cannot_spell_an_answer_is_refused():
         TokenConstraint(SPECIALS + ["hello", "world"], EOS, "xya")
     # every piece of the answer is there but the angle's digits: refused at construction, by name
     vocab = [t for t in toy_vocabulary() if not re.fullmatch(r"[-.\d]+", t) or t in ("1,y_2",)]
-    with pytest.raises(ValueError, match="whole xya answer"):
+    with pytest.raises(ValueError, match="whole xya grasp answer"):
         TokenConstraint(vocab, EOS, "xya")
+    with pytest.raises(ValueError, match="whole xya angle answer"):  # the angle part alone as well
+        TokenConstraint(vocab, EOS, "xya", part="angle")
 
 
 def test_constrained_generation_with_the_model_parses():

@@ -4,7 +4,12 @@ The answer templates come from kosmos_jax.grasp_text. A template is split into l
 number fields; each field has a finite set of allowed spellings, exactly the values
 `grasp_text.parse_grasp` accepts (`field_domains`), so the answer language is regular. A
 character-level automaton (trie nodes for fields, offsets for literals) is run over every token's
-string to get a token-level transition table.
+string to get a token-level transition table. EOS is a token like the others, spelling an end
+marker after the template, so that it completes the last field like any literal would.
+
+An answer is a `part` of formatter's examples: "grasp", the whole answer of joint mode, or in
+individual mode the value after a prompt's cue ("location": "x_12,y_3", "angle": "a_77"; the cue
+itself ends the prompt). Each part's value template is formatter.split_cue of the grasp text.
 
 Orderings the parser demands but a small automaton cannot hold (TLBRA: x1 <= x2 with the box's
 middle inside the image; TLBRA-patch: the lower-right patch not left of or above the upper-left
@@ -16,6 +21,10 @@ left after it, so no state without a way out is ever entered and every answer en
 answer parses. Tokenizer-agnostic: give the text of every token id (`token_texts` for this
 project's SentencePiece tokenizers) and the EOS id. A token that completes two fields is not used
 up to the last field of an order relation (a register holds one value per token).
+
+SentencePiece spells the first token of a segment with a leading "▁" (layout.py encodes the
+instruction, the cue and the value each on their own), so the answer may start with one space
+(`optional_prefix`); the tokenizer's decode drops it, and the value is what remains.
 """
 
 from __future__ import annotations
@@ -30,8 +39,10 @@ import sentencepiece as spm
 
 from kosmos_jax import grasp_text
 from kosmos_jax.models import grammar_budget as budget
+from kosmos_jax.text import formatter
 
 _FIELD_RE = re.compile(r"\{(\w+)(?::[^}]*)?\}")
+END = "\x00"  # the end marker EOS spells; a token whose text holds it is never allowed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,15 +59,26 @@ class Relation:
     kind: str  # "box": lower <= upper, their mean inside the image; "patch": upper's row and column >= lower's
 
 
-def answer_template(representation: str) -> str:
+def check_part(part: str) -> str:
+    if part not in formatter.PARTS:
+        raise ValueError(f"unknown answer part {part!r}; expected one of {formatter.PARTS}")
+    return part
+
+
+def answer_template(representation: str, part: str = "grasp") -> str:
+    """The text a `part` answer writes, fields in braces: the whole grasp, or the value after the
+    location's or the angle's cue ("x_{x},y_{y}", "a_{a}")."""
     grasp_text.check_representation(representation)
+    check_part(part)
     location = {
         "xya": grasp_text.CENTRE_TEXT,
         "xywha": grasp_text.CENTRE_TEXT + " " + grasp_text.SIZE_TEXT,
         "tlbra": grasp_text.BOX_TEXT,
         "tlbra_patch": grasp_text.PATCH_TEXT,
     }[representation]
-    return location + " " + grasp_text.ANGLE_TEXT
+    if part == "grasp":
+        return location + " " + grasp_text.ANGLE_TEXT
+    return formatter.split_cue(location if part == "location" else grasp_text.ANGLE_TEXT)[1]
 
 
 def _ints(name, lo, hi, width=0):
@@ -99,7 +121,8 @@ def relation_holds(kind: str, lower, upper, image_size: int):
 
 
 class _CharMachine:
-    """Character-level DFA of one answer template. State 0 is dead; 1 is the start."""
+    """Character-level DFA of one answer template followed by END. State 0 is dead; 1 is the
+    start; `final` is the state after END."""
 
     def __init__(self, template: str, fields: dict[str, Field], optional_prefix: str):
         pieces: list[str | Field] = []
@@ -107,7 +130,7 @@ class _CharMachine:
         for match in _FIELD_RE.finditer(template):
             pieces += [template[pos:match.start()], fields[match.group(1)]]
             pos = match.end()
-        pieces = [p for p in [*pieces, template[pos:]] if p != ""]
+        pieces = [p for p in [*pieces, template[pos:] + END] if p != ""]
         if any(isinstance(a, Field) and isinstance(b, Field) for a, b in zip(pieces, pieces[1:])):
             raise ValueError(f"template {template!r} has two adjacent fields")
         self.fields = [p for p in pieces if isinstance(p, Field)]
@@ -117,7 +140,7 @@ class _CharMachine:
         self.edges: dict[tuple[int, str], tuple[int, int, int]] = {}  # (state, char) -> (state, field, value index)
         self.n_states = 2
         self.inside_value: set[int] = set()  # trie nodes past a field's entry: some digits of a value read
-        self.accepting: set[int] = set()
+        self.final = self._new()
         entry = self._build(pieces)
         self._copy_edges(entry, 1)
         if optional_prefix:  # e.g. the space SentencePiece puts before the first word
@@ -136,20 +159,15 @@ class _CharMachine:
         for (src, ch), edge in list(self.edges.items()):
             if src == source:
                 self.edges[(target, ch)] = edge
-        if source in self.accepting:
-            self.accepting.add(target)
 
     def _build(self, pieces) -> int:
         """States from the last piece backwards; returns the entry state of the first piece."""
-        after = None  # entry state of the piece after the current one (None: end of the answer)
+        after = self.final  # entry state of the piece after the current one
         field_index = len(self.fields)
         for piece in reversed(pieces):
             if isinstance(piece, str):
                 states = [self._new() for _ in piece]
                 end = after
-                if end is None:
-                    end = self._new()
-                    self.accepting.add(end)
                 for i, ch in enumerate(piece):
                     self.edges[(states[i], ch)] = (states[i + 1] if i + 1 < len(piece) else end, -1, -1)
                 after, after_first = states[0], piece[0]
@@ -164,11 +182,7 @@ class _CharMachine:
                         self.edges[(nodes[spelling[:k - 1]], spelling[k - 1])] = (nodes[spelling[:k]], -1, -1)
             self.inside_value.update(node for prefix, node in nodes.items() if prefix)
             for prefix, node in nodes.items():
-                if prefix not in index_of:
-                    continue
-                if after is None:
-                    self.accepting.add(node)
-                else:  # the first char of the next literal ends the field
+                if prefix in index_of:  # the first char of the next literal ends the field
                     target = self.edges[(after, after_first)][0]
                     self.edges[(node, after_first)] = (target, field_index, index_of[prefix])
             after = nodes[""]
@@ -252,47 +266,57 @@ class _CharMachine:
 class TokenConstraint:
     """The answer grammar over token ids, usable inside jit (see decode.generate's `constraint`).
 
-    State per row: {"state": automaton state, "reg": spelling index of the completed fields}. EOS
-    is allowed exactly in accepting states; another token only if the answer can still be completed
-    within the tokens left after it. `min_tokens`: the fewest tokens of a whole answer, EOS included.
+    `part`: "grasp" (the whole answer), "location" or "angle" (the value after that part's cue;
+    `for_part` takes the settings from a FormatConfig). State per row: {"state": automaton state,
+    "reg": spelling index of the completed fields}. A token, EOS included, is allowed if the answer
+    can still be completed within the tokens left after it. `min_tokens`: the fewest tokens of a
+    whole answer, EOS included.
     """
 
     def __init__(self, token_texts: Sequence[str], eos_id: int, representation: str = "xya", *,
-                 angle_code: bool = True, image_size: int = 224, optional_prefix: str = " "):
+                 angle_code: bool = True, image_size: int = 224, optional_prefix: str = " ", part: str = "grasp"):
         self.representation, self.angle_code, self.image_size = representation, angle_code, image_size
+        self.part = check_part(part)
         self.eos_id, self.vocab_size = eos_id, len(token_texts)
         fields = field_domains(representation, angle_code, image_size)
-        machine = _CharMachine(answer_template(representation), fields, optional_prefix)
+        machine = _CharMachine(answer_template(representation, part), fields, optional_prefix)
         self.field_names = [f.name for f in machine.fields]
         n_states = machine.n_states
         index = {name: i for i, name in enumerate(self.field_names)}
-        stored = [index[name] for r in relations(representation) for name in (r.lower, r.upper)]
-        ids, trans, store_field, store_value = machine.run_tokens(
-            [(text, i) for i, text in enumerate(token_texts) if i != eos_id], max(stored, default=-1))
-        if not ids.size:
-            raise ValueError(f"no token of the vocabulary can start or continue a {representation} answer")
+        kept = [r for r in relations(representation) if r.lower in index]
+        stored = [index[name] for r in kept for name in (r.lower, r.upper)]
+        tokens = [(text, i) for i, text in enumerate(token_texts) if i != eos_id and END not in text]
+        ids, trans, store_field, store_value = machine.run_tokens([*tokens, (END, eos_id)], max(stored, default=-1))
+        what = f"{representation} {part} answer (angle_code={angle_code}, image_size={image_size})"
+        if not (ids != eos_id).any():
+            raise ValueError(f"no token of the vocabulary can start or continue a {what}")
         self.token_ids = np.asarray(ids, np.int32)  # [R]
         self.trans, self.store_field, self.store_value = trans, store_field, store_value  # [S, R]; trans 0 = dead
         self.column_of_token = np.full(self.vocab_size, -1, np.int32)
         self.column_of_token[self.token_ids] = np.arange(ids.size)
-        self.accepting = np.zeros(n_states, bool)
-        self.accepting[list(machine.accepting)] = True
 
         phase, order = machine.phase_and_order()
         neutral = np.ones(n_states, bool)
         neutral[list(machine.inside_value)] = False
-        automaton = budget.Automaton(self.trans, self.store_field, self.store_value, self.accepting, phase, order,
+        final = np.arange(n_states) == machine.final
+        automaton = budget.Automaton(self.trans, self.store_field, self.store_value, final, phase, order,
                                      neutral, tuple(len(f.spellings) for f in machine.fields))
         pairs = tuple(
             budget.Relation(index[r.lower], index[r.upper], relation_holds(
                 r.kind, np.asarray(fields[r.lower].values)[:, None], np.asarray(fields[r.upper].values)[None, :],
                 image_size))
-            for r in relations(representation))
+            for r in kept)
         self.tables = budget.tables(automaton, pairs)
         self.min_tokens = self.tables.min_tokens
         if self.min_tokens >= budget.INF:
-            raise ValueError(f"no sequence of the vocabulary's tokens spells a whole {representation} answer "
-                             f"(angle_code={angle_code}, image_size={image_size})")
+            raise ValueError(f"no sequence of the vocabulary's tokens spells a whole {what}")
+
+    @classmethod
+    def for_part(cls, token_texts: Sequence[str], eos_id: int, config: formatter.FormatConfig, part: str,
+                 **kwargs) -> TokenConstraint:
+        """The constraint of one part of `config`'s examples (representation, angle code, image size)."""
+        return cls(token_texts, eos_id, config.representation, angle_code=config.angle_code,
+                   image_size=config.image_size, part=part, **kwargs)
 
     # -- the interface decode.generate uses -----------------------------------------------------
     def init(self, batch: int):
@@ -309,8 +333,7 @@ class TokenConstraint:
         ok = (nxt > 0) & (needed <= remaining - 1) & budget.completion_allowed(self.tables, field, value, reg)
         mask = jnp.zeros((s.shape[0], vocab_size), bool).at[:, jnp.asarray(self.token_ids)].set(ok)
         # a row with no choice only arises when called with fewer tokens left than the answer needs
-        eos = jnp.asarray(self.accepting)[s] | ~jnp.any(mask, axis=1)
-        return mask.at[:, self.eos_id].set(eos)
+        return mask.at[:, self.eos_id].set(mask[:, self.eos_id] | ~jnp.any(mask, axis=1))
 
     def advance(self, cstate, tokens):
         s, reg = cstate["state"], cstate["reg"]

@@ -3,7 +3,8 @@
 The token-level automaton of the answer grammar is acyclic (every token moves forward in the
 answer), so the fewest tokens from a state to the end is one backward pass. A state's `phase` is
 the index of the next field to complete. Costs count every token still to come, EOS included:
-an accepting state needs 1.
+EOS is the token that ends the last field (it spells the answer's end marker), and the final state
+after it needs 0.
 
 Order relations (TLBRA: x2 >= x1, ...) make the cost depend on stored field values. The cost from
 (state, registers) is kept a sum of terms, each a table over (state, one value):
@@ -42,7 +43,7 @@ class Automaton:
     trans: np.ndarray  # [S, R] next state per usable token column, 0 = dead
     field: np.ndarray  # [S, R] index of the field the token completes, -1 none
     value: np.ndarray  # [S, R] index (into the field's spellings) of the completed value
-    accepting: np.ndarray  # [S] bool
+    final: np.ndarray  # [S] bool: the state after EOS
     phase: np.ndarray  # [S] index of the next field to complete; -1 for the dead or unreachable
     order: np.ndarray  # [S] the states in an order every token moves forward in
     neutral: np.ndarray  # [S] bool: no digit of a value read yet (a literal, or a field's entry)
@@ -78,7 +79,7 @@ def _tail_costs(a: Automaton, after: int) -> np.ndarray:
         if a.phase[q] <= after:
             continue
         nxt = a.trans[q][a.trans[q] > 0]
-        best = 1 if a.accepting[q] else INF
+        best = 0 if a.final[q] else INF
         if nxt.size:
             best = min(best, 1 + int(cost[nxt].min()))
         cost[q] = best
@@ -121,8 +122,8 @@ def tables(a: Automaton, relations: tuple[Relation, ...]) -> Tables:
     n_states = len(a.phase)
     upper_of = {rel.upper: k for k, rel in enumerate(relations)}
     last = max([f for rel in relations for f in (rel.lower, rel.upper)], default=-1)
-    if last >= len(a.domain_sizes) - 1:
-        raise ValueError("the last field of an answer cannot take part in an order relation")
+    if not (a.phase > last).any():
+        raise ValueError("every field of an order relation must be completed by a token")
     base = _tail_costs(a, last)  # exact after the last relation field
     upper_row = [np.full(n_states, -1, np.int32) for _ in relations]
     upper_cost = [np.zeros((0, rel.holds.shape[0]), np.int64) for rel in relations]
