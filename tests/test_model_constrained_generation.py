@@ -1,5 +1,6 @@
 """Constrained generation end to end: the project's SentencePiece tokenizer, the tiny model with
-random weights, decode.generate: every decoded answer parses, for every representation."""
+random weights, decode.generate: every decoded answer parses, for every representation, whole
+(joint mode) or as the value after a cue that ends the prompt (individual mode)."""
 
 import pathlib
 
@@ -11,6 +12,7 @@ import pytest
 from kosmos_jax import grasp_text
 from kosmos_jax.models import decode, weights
 from kosmos_jax.models.grammar import TokenConstraint, token_texts
+from kosmos_jax.text import formatter
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import train_tokenizer
 
@@ -60,10 +62,12 @@ INSTRUCTIONS = ("Grasp the black remote control.", "Grasp the handle of the mug.
                 "Grasp the object with a rotation angle of a_156 radians.")
 
 
-def prompts(tokenizer, slots: int):
-    """ROWS left-padded prompts <s><image> slots </image> instruction: (ids, mask, image_mask)."""
+def prompts(tokenizer, slots: int, cue: str = ""):
+    """ROWS left-padded prompts <s><image> slots </image> instruction cue, each text encoded on its
+    own as layout.py does: (ids, mask, image_mask)."""
+    cue_ids = tokenizer.encode(cue) if cue else []
     rows = [[tokenizer.bos_id, tokenizer.image_start_id, *special.IMAGE_SLOT_IDS[:slots], tokenizer.image_end_id,
-             *tokenizer.encode(text)] for text in INSTRUCTIONS[:ROWS]]
+             *tokenizer.encode(text), *cue_ids] for text in INSTRUCTIONS[:ROWS]]
     length = max(map(len, rows))
     ids = np.full((ROWS, length), tokenizer.pad_id, np.int32)
     mask, image_mask = np.zeros(ids.shape, bool), np.zeros(ids.shape, bool)
@@ -74,22 +78,18 @@ def prompts(tokenizer, slots: int):
     return jnp.asarray(ids), jnp.asarray(mask), jnp.asarray(image_mask)
 
 
-CASES = ([("digits", r, True) for r in grasp_text.REPRESENTATIONS]
-         + [("digits", "xya", False), ("digits", "tlbra", False)]
-         + [("values", r, True) for r in ("xya", "xywha", "tlbra")])
+def vocabulary_texts(tokenizer, model):
+    return token_texts(tokenizer) + [""] * (model.config.text.vocab_size - tokenizer.vocab_size)
 
 
-@pytest.mark.parametrize("numbers,representation,angle_code", CASES)
-def test_every_decoded_answer_parses(tokenizers, model, numbers, representation, angle_code):
-    tokenizer = tokenizers[numbers]
-    vocab_size = model.config.text.vocab_size
-    texts = token_texts(tokenizer) + [""] * (vocab_size - tokenizer.vocab_size)
-    constraint = TokenConstraint(texts, tokenizer.eos_id, representation, angle_code=angle_code, image_size=SIZE)
-    ids, mask, image_mask = prompts(tokenizer, model.config.latent_query_num)
+def constrained_rows(tokenizer, model, constraint, cue="", seeds=3):
+    """The generated ids of ROWS prompts (ending with `cue`) for each seed's random weights and
+    image embeddings, under `constraint`, up to the EOS every row must have."""
+    ids, mask, image_mask = prompts(tokenizer, model.config.latent_query_num, cue)
     slots = model.config.latent_query_num
     table = model.text_model.model.embed_tokens.embedding
-    answers = set()
-    for seed in range(3):
+    answers = []
+    for seed in range(seeds):
         weights_key, image_key = jax.random.split(jax.random.key(seed))
         table.set_value(jax.random.normal(weights_key, table.shape))  # the tied LM head: random logits
         embeds = jax.random.normal(image_key, (ROWS, slots, model.config.text.embed_dim))
@@ -98,8 +98,47 @@ def test_every_decoded_answer_parses(tokenizers, model, numbers, representation,
                                  constraint=constraint)
         for row in np.asarray(tokens).tolist():
             assert tokenizer.eos_id in row, row
-            text = tokenizer.decode(row[:row.index(tokenizer.eos_id)])
-            parsed = grasp_text.parse_grasp(text, representation, angle_code=angle_code, image_size=SIZE)
-            assert parsed.ok, (text, parsed.error)
-            answers.add(text)
-    assert len(answers) > 1  # the rows and seeds do not all say the same
+            answers.append(row[:row.index(tokenizer.eos_id)])
+    return answers
+
+
+CASES = ([("digits", r, True) for r in grasp_text.REPRESENTATIONS]
+         + [("digits", "xya", False), ("digits", "tlbra", False)]
+         + [("values", r, True) for r in ("xya", "xywha", "tlbra")])
+
+
+@pytest.mark.parametrize("numbers,representation,angle_code", CASES)
+def test_every_decoded_answer_parses(tokenizers, model, numbers, representation, angle_code):
+    tokenizer = tokenizers[numbers]
+    constraint = TokenConstraint(vocabulary_texts(tokenizer, model), tokenizer.eos_id, representation,
+                                 angle_code=angle_code, image_size=SIZE)
+    answers = [tokenizer.decode(row) for row in constrained_rows(tokenizer, model, constraint)]
+    for text in answers:
+        parsed = grasp_text.parse_grasp(text, representation, angle_code=angle_code, image_size=SIZE)
+        assert parsed.ok, (text, parsed.error)
+    assert len(set(answers)) > 1  # the rows and seeds do not all say the same
+
+
+# individual mode: every representation's location, the angle with and without the code
+PART_CASES = ([("digits", r, True, "location") for r in grasp_text.REPRESENTATIONS]
+              + [("digits", "xya", code, "angle") for code in (True, False)]
+              + [("values", "xya", True, part) for part in ("location", "angle")])
+
+
+@pytest.mark.parametrize("numbers,representation,angle_code,part", PART_CASES)
+def test_every_value_decoded_after_its_cue_parses(tokenizers, model, numbers, representation, angle_code, part):
+    """Prompts end with the part's cue, as in individual mode; the value decoded under the part's
+    constraint makes, after the cue, a target text formatter.parse_target accepts."""
+    tokenizer = tokenizers[numbers]
+    config = formatter.FormatConfig(representation, angle_code, individual=True, image_size=SIZE)
+    prompt = {p.part: p for p in decode.cue_constraints(vocabulary_texts(tokenizer, model), tokenizer.eos_id,
+                                                        config)}[part]
+    texts = []
+    for row in constrained_rows(tokenizer, model, prompt.constraint, prompt.cue, seeds=2):
+        text = prompt.target_text(row)
+        parsed = formatter.parse_target(text, part, config)
+        assert parsed.ok, (text, parsed.error)
+        # the tokenizer reads the same value (its decode may keep a byte piece's leading space)
+        assert tokenizer.decode(row).removeprefix(" ") == prompt.constraint.answer(row)
+        texts.append(text)
+    assert len(set(texts)) > 1

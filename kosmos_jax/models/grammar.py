@@ -24,7 +24,7 @@ up to the last field of an order relation (a register holds one value per token)
 
 SentencePiece spells the first token of a segment with a leading "▁" (layout.py encodes the
 instruction, the cue and the value each on their own), so the answer may start with one space
-(`optional_prefix`); the tokenizer's decode drops it, and the value is what remains.
+(`optional_prefix`); `TokenConstraint.answer` gives the text without it.
 """
 
 from __future__ import annotations
@@ -278,6 +278,7 @@ class TokenConstraint:
         self.representation, self.angle_code, self.image_size = representation, angle_code, image_size
         self.part = check_part(part)
         self.eos_id, self.vocab_size = eos_id, len(token_texts)
+        self.token_texts, self.optional_prefix = tuple(token_texts), optional_prefix
         fields = field_domains(representation, angle_code, image_size)
         machine = _CharMachine(answer_template(representation, part), fields, optional_prefix)
         self.field_names = [f.name for f in machine.fields]
@@ -317,6 +318,15 @@ class TokenConstraint:
         """The constraint of one part of `config`'s examples (representation, angle code, image size)."""
         return cls(token_texts, eos_id, config.representation, angle_code=config.angle_code,
                    image_size=config.image_size, part=part, **kwargs)
+
+    def answer(self, ids: Sequence[int]) -> str:
+        """The answer that generated ids spell: their texts up to EOS, without the optional prefix.
+        (A tokenizer's decode may keep that space: SentencePiece drops a leading "▁" but not a byte
+        piece's space.) For a location or angle part this is the value to put after the cue."""
+        ids = [int(i) for i in ids]
+        if self.eos_id in ids:
+            ids = ids[:ids.index(self.eos_id)]
+        return "".join(self.token_texts[i] for i in ids).removeprefix(self.optional_prefix)
 
     # -- the interface decode.generate uses -----------------------------------------------------
     def init(self, batch: int):
