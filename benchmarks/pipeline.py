@@ -66,11 +66,11 @@ def time_plain_loop(source, batch_size: int, batches: int) -> float:
 def time_small_model_step(batch_size: int, length: int) -> float:
     """Samples/s of forward+backward of the `small` model on batches of this shape."""
     sys.path.insert(0, str(pathlib.Path(__file__).parent))
-    from model import train_step_mfu  # benchmarks/model.py: the same timed step
+    from model import train_step_speed  # benchmarks/model.py: the same timed step
 
     from kosmos_jax.models import config as config_lib
 
-    step = train_step_mfu(config_lib.get_config("small"), batch_size, length, peak_gflops=float("nan"))
+    step = train_step_speed(config_lib.get_config("small"), batch_size, length)
     return batch_size / step["step_seconds"]
 
 

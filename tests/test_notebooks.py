@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import pathlib
 
 import pytest
@@ -22,7 +21,6 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
     cells = [c for c in notebook["cells"] if c["cell_type"] == "code"]
     assert all(not c.get("outputs") for c in cells), f"{path.name} is committed with outputs; clear them"
     monkeypatch.chdir(path.parent)  # as Jupyter runs it
-    monkeypatch.setenv("MPLBACKEND", os.environ.get("MPLBACKEND", "Agg"))
     namespace: dict = {"__name__": "__main__"}
     for number, cell in enumerate(cells):
         source = "".join(cell["source"])
