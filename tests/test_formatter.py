@@ -9,7 +9,7 @@ from kosmos_jax import geometry, grasp_text
 from kosmos_jax.instruct.sample import Sample
 from kosmos_jax.text import layout
 from kosmos_jax.text import tokens as special
-from kosmos_jax.text.formatter import FormatConfig, format_sample, parse_target, prompt_cues
+from kosmos_jax.text.formatter import FormatConfig, check_part, format_sample, parse_target, prompt_cues, target_text
 from kosmos_jax.text.tokenizer import train_tokenizer
 
 SIZE = 224
@@ -193,6 +193,19 @@ def test_bad_inputs(tokenizer):
     (example, _) = format_sample(_sample(_grasps(1)), FormatConfig())
     with pytest.raises(ValueError, match="max_length=40"):
         layout.encode_example(example, tokenizer, FormatConfig(max_length=40))
+
+
+def test_parts_are_checked_by_name():
+    assert [check_part(part) for part in ("grasp", "location", "angle")] == ["grasp", "location", "angle"]
+    with pytest.raises(ValueError, match=r"unknown part 'size'; expected one of \('grasp', 'location', 'angle'\)"):
+        check_part("size")
+
+
+def test_target_text_joins_cue_and_value():
+    assert target_text("Grasp center point coordinates:", "x_1,y_2") == "Grasp center point coordinates: x_1,y_2"
+    assert target_text("", "x_1,y_2 a_3") == "x_1,y_2 a_3"  # joint mode: no cue
+    for example in format_sample(_sample(_grasps(2)), FormatConfig()):
+        assert example.target_text == target_text(example.cue, example.value)
 
 
 def test_image_tags_occur_once_per_prompt(tokenizer):

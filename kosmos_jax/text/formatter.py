@@ -92,12 +92,24 @@ class TextExample:
     @property
     def target_text(self) -> str:
         """The answer as the grasp text of `kosmos_jax.grasp_text` (cue and value)."""
-        return f"{self.cue} {self.value}" if self.cue else self.value
+        return target_text(self.cue, self.value)
 
     @property
     def text(self) -> str:
         """Instruction, cue and value as the tokens spell them (single spaces between)."""
         return " ".join(s for s in (self.instruction, self.cue, self.value) if s)
+
+
+def check_part(part: str) -> str:
+    """`part` if it is one of PARTS; ValueError naming it otherwise."""
+    if part not in PARTS:
+        raise ValueError(f"unknown part {part!r}; expected one of {PARTS}")
+    return part
+
+
+def target_text(cue: str, value: str) -> str:
+    """The answer text of a part: "cue value", or the value alone when there is no cue (joint mode)."""
+    return f"{cue} {value}" if cue else value
 
 
 def _printable(grasp: np.ndarray, image_size: int) -> np.ndarray:
@@ -188,8 +200,7 @@ def format_sample(sample, config: FormatConfig, rng: np.random.Generator | None 
 
 def parse_target(text: str, part: str, config: FormatConfig) -> grasp_text.ParsedGrasp:
     """Parse a target text (cue and value) of one part back to (x, y, w, h, theta), NaN where unstated."""
-    if part not in PARTS:
-        raise ValueError(f"unknown part {part!r}; expected one of {PARTS}")
+    check_part(part)
     if part == "grasp":
         return grasp_text.parse_grasp(text, config.representation, config.angle_code, config.image_size)
     if part == "angle":
