@@ -51,17 +51,20 @@ _PATCH_RE = re.compile(r"Grasp bounding box: <patch_index_([0-9]{4})><patch_inde
 _ANGLE_RE = re.compile(r"Grasp rotation angle in radians: a_" + _NUM + _END)
 
 
-def _cue(template: str) -> str:
-    """The words before a template's first value: "Grasp center point coordinates:"."""
-    return template.partition(": ")[0] + ":"
+def split_cue(text: str) -> tuple[str, str]:
+    """"Grasp center point coordinates: x_1,y_2" -> ("Grasp center point coordinates:", "x_1,y_2")."""
+    cue, sep, value = text.partition(": ")
+    if not sep:
+        raise ValueError(f"grasp text {text!r} has no 'cue: value' form")
+    return cue + ":", value
 
 
 # The fields of each representation: (what, cue, pattern).
-_CENTRE = ("centre point", _cue(CENTRE_TEXT), _CENTRE_RE)
-_SIZE = ("width and height", _cue(SIZE_TEXT), _SIZE_RE)
-_BOX = ("bounding box", _cue(BOX_TEXT), _BOX_RE)
-_PATCH = ("patch-index box", _cue(PATCH_TEXT), _PATCH_RE)
-_ANGLE = ("rotation angle", _cue(ANGLE_TEXT), _ANGLE_RE)
+_CENTRE = ("centre point", split_cue(CENTRE_TEXT)[0], _CENTRE_RE)
+_SIZE = ("width and height", split_cue(SIZE_TEXT)[0], _SIZE_RE)
+_BOX = ("bounding box", split_cue(BOX_TEXT)[0], _BOX_RE)
+_PATCH = ("patch-index box", split_cue(PATCH_TEXT)[0], _PATCH_RE)
+_ANGLE = ("rotation angle", split_cue(ANGLE_TEXT)[0], _ANGLE_RE)
 # The values each representation writes: x, y, w, h, theta.
 _NEEDED = {"xya": [0, 1, 4], "xywha": [0, 1, 2, 3, 4], "tlbra": [0, 1, 2, 3, 4], "tlbra_patch": [0, 1, 2, 3, 4]}
 

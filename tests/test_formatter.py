@@ -121,6 +121,26 @@ def test_centre_on_the_edge_prints_inside():
     assert parse_target(example.target_text, "grasp", FormatConfig()).ok
 
 
+@pytest.mark.parametrize("representation", grasp_text.REPRESENTATIONS)
+@pytest.mark.parametrize("angle_code", [True, False])
+def test_targets_are_grasp_texts_even_at_the_edges(representation, angle_code):
+    """One clamping rule: the targets a build writes are grasp_text.format_grasp's text, split."""
+    rng = np.random.default_rng(3)
+    n = 400
+    grasps = np.c_[rng.choice([-3.0, 0.0, 0.4, 223.4, 223.6, 224.0, 230.0], (n, 2)),
+                   rng.choice([0.0, 0.3, 1.0, 447.6, 448.0, 1000.0], (n, 2)), rng.uniform(-np.pi / 2, np.pi / 2, n)]
+    grasps[n // 2:, :4] = rng.uniform([-5, -5, 0, 0], [230, 230, 600, 600], (n - n // 2, 4))
+    individual = FormatConfig(representation=representation, angle_code=angle_code, target_grasp="each")
+    joint = FormatConfig(representation=representation, angle_code=angle_code, target_grasp="each", individual=False)
+    locations = [e for e in format_sample(_sample(grasps), individual) if e.part == "location"]
+    wholes = format_sample(_sample(grasps), joint)
+    angle_length = [len(grasp_text.format_angle(g[4], angle_code)) + 1 for g in grasps]
+    for grasp, location, whole, cut in zip(grasps, locations, wholes, angle_length):
+        expected = grasp_text.format_grasp(grasp, representation, angle_code, SIZE)
+        assert whole.target_text == expected
+        assert location.target_text == expected[:-cut], grasp.tolist()
+
+
 @pytest.mark.parametrize("loss_on", ["target", "instruction"])
 @pytest.mark.parametrize("individual", [True, False])
 def test_layout_and_loss_span(tokenizer, loss_on, individual):

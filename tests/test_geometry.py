@@ -200,6 +200,17 @@ def test_every_formatted_grasp_parses_at_the_edges(representation, angle_code):
                 assert np.abs(parsed.grasp[:2] - inside).max() <= 0.5 + 1e-9, (grasp.tolist(), text)
 
 
+def test_split_cue_separates_each_fields_cue_from_its_value():
+    texts = grasp_text.format_grasp([100.0, 50.0, 30.0, 10.0, 0.2], "xywha", angle_code=False).split(" Grasp ")
+    assert [grasp_text.split_cue(t if t.startswith("Grasp") else "Grasp " + t) for t in texts] == [
+        ("Grasp center point coordinates:", "x_100,y_50"), ("Grasp width and height:", "w_30,h_10"),
+        ("Grasp rotation angle in radians:", "a_0.20")]
+    assert grasp_text.split_cue(grasp_text.format_grasp([100.0, 50.0, 30.0, 10.0, 0.0], "tlbra_patch"))[0] == (
+        "Grasp bounding box:")
+    with pytest.raises(ValueError, match="no 'cue: value' form"):
+        grasp_text.split_cue("x_1,y_2")
+
+
 def test_patch_box_of_no_width_on_a_grid_line_parses():
     grasp = np.array([49.0, 98.0, 0.0, 0.0, 0.0])  # 49 and 98 px are grid lines of the 7 px cells
     text = grasp_text.format_grasp(grasp, "tlbra_patch")

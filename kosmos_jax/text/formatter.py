@@ -14,9 +14,9 @@ Settings (`FormatConfig`), after the paper's ablations (Tables IV and V):
   or "random" (one, drawn with the given generator).
 An angle instruction already states the angle, so its answer is the location only.
 
-The text of a location is made from the grasp with its centre clipped to [0, image_size - 1] and
-its size to [1, 2 * image_size], so that rounding cannot push a value outside what the parser
-accepts (a centre at x = 223.6 would print as x_224); `grasp` keeps the unrounded values.
+The text of a location is `grasp_text.format_grasp`'s, less the angle: it keeps every printed
+value inside what the parser accepts (a centre at x = 223.6 prints as x_223, not x_224); `grasp`
+keeps the unrounded values.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from kosmos_jax import grasp_text
+from kosmos_jax.grasp_text import split_cue  # also formatter.split_cue, for the decoder's grammar
 
 LOSS_MODES = ("target", "instruction")
 OVERFLOW_MODES = ("error", "truncate")
@@ -112,26 +113,10 @@ def target_text(cue: str, value: str) -> str:
     return f"{cue} {value}" if cue else value
 
 
-def _printable(grasp: np.ndarray, image_size: int) -> np.ndarray:
-    grasp = np.array(grasp, np.float64)
-    grasp[:2] = np.clip(grasp[:2], 0.0, image_size - 1.0)
-    grasp[2:4] = np.clip(grasp[2:4], 1.0, 2.0 * image_size)
-    return grasp
-
-
-def split_cue(text: str) -> tuple[str, str]:
-    """"Grasp center point coordinates: x_1,y_2" -> ("Grasp center point coordinates:", "x_1,y_2")."""
-    cue, sep, value = text.partition(": ")
-    if not sep:
-        raise ValueError(f"grasp text {text!r} has no 'cue: value' form")
-    return cue + ":", value
-
-
 def location_text(grasp, config: FormatConfig) -> str:
     """The location part of a grasp's text (all of it but the angle)."""
-    printable = _printable(grasp, config.image_size)
-    full = grasp_text.format_grasp(printable, config.representation, config.angle_code, config.image_size)
-    angle = grasp_text.format_angle(printable[4], config.angle_code)
+    full = grasp_text.format_grasp(grasp, config.representation, config.angle_code, config.image_size)
+    angle = grasp_text.format_angle(grasp[4], config.angle_code)
     if not full.endswith(" " + angle):
         raise AssertionError(f"grasp text {full!r} does not end with its angle {angle!r}")
     return full[: -len(angle) - 1]
