@@ -4,7 +4,7 @@ import shutil
 
 import pytest
 
-from kosmos_jax.data import cornell, objects
+from kosmos_jax.data import cornell, objects, text_file
 
 
 def test_real_map_deduplicated(cornell_root):
@@ -40,6 +40,10 @@ def test_reader_attaches_or_not(tmp_path, cornell_root):
     ("0100 1 Mug pcdb_0001\n0101 1 Mug\n", 2),
     ("0100 1 Mug pcdb_0001\n\nx100 1 Mug pcdb_0001\n", 3),
     ("0100 1 Mug pcdb_0001\n0100 2 Bowl pcdb_0001\n", 2),  # one image, two objects
+    ("0100 1 Mug pcdb_0001\n\u0661\u0660\u0660 1 Mug pcdb_0001\n", 2),  # Arabic-Indic digits: int() reads them
+    ("0100 1_0 Mug pcdb_0001\n", 1),
+    ("0100 -1 Mug pcdb_0001\n", 1),
+    ("0100 +1 Mug pcdb_0001\n", 1),
 ])
 def test_bad_lines_name_file_and_line(tmp_path, text, line):
     path = tmp_path / "z.txt"
@@ -47,6 +51,11 @@ def test_bad_lines_name_file_and_line(tmp_path, text, line):
     with pytest.raises(objects.ObjectMapFormatError) as error:
         objects.read_object_map(path)
     assert str(path) in str(error.value) and f"line {line}" in str(error.value)
+
+
+def test_ascii_integers_are_ascii_digits_only():
+    assert all(text_file.is_ascii_integer(f) for f in ("0", "12", "0042"))
+    assert not any(text_file.is_ascii_integer(f) for f in ("", "-1", "+1", "1_0", "1.0", " 1", "\u0661\u0662", "\uff11"))
 
 
 def test_repeated_identical_lines_are_one_entry():

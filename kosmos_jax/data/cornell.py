@@ -103,7 +103,7 @@ def list_photo_ids(root: str | pathlib.Path) -> list[str]:
 def parse_corners(text: str, source: str = "<text>") -> np.ndarray:
     """Cornell rectangle text -> [R, 4, 2] float64 corners (NaN kept). Raises CornellFormatError."""
     points, line_numbers = [], []
-    for number, line in enumerate(text_file.split_lines(text.removeprefix("\ufeff")), start=1):
+    for number, line in enumerate(text_file.split_lines(text), start=1):
         fields = text_file.split_fields(line)
         if not fields:
             continue

@@ -44,7 +44,7 @@ def parse_object_map(text: str, source: str = "<text>") -> dict[str, tuple[int, 
             raise ObjectMapFormatError(
                 f"{source}, line {number}: expected 'IMAGE OBJECT_ID CATEGORY BACKGROUND', got {line.strip()!r}")
         image, object_id, category, _ = fields
-        if not (image.isascii() and image.isdigit() and object_id.isascii() and object_id.isdigit()):
+        if not (text_file.is_ascii_integer(image) and text_file.is_ascii_integer(object_id)):
             raise ObjectMapFormatError(
                 f"{source}, line {number}: image and object id must be integers, got {line.strip()!r}")
         photo_id = f"pcd{int(image):04d}"

@@ -2,7 +2,8 @@
 
 Lines end at \\r\\n, \\r or \\n only (str.splitlines also breaks at form feeds, vertical tabs and
 U+2028, which would shift the line numbers an error reports), fields are separated by spaces or
-tabs, and a number is an ASCII decimal (float() would also take '1_0' and non-ASCII digits).
+tabs, and a number is an ASCII decimal (float() and int() would also take '1_0' and non-ASCII
+digits).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import re
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 _LINE_BREAK_BYTES = re.compile(rb"\r\n|\r|\n")
 _FIELD_GAP = re.compile(r"[ \t]+")
+_INTEGER = re.compile(r"[0-9]+")
 _NUMBER = re.compile(
     r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|nan|inf|infinity)", re.IGNORECASE)
 
@@ -50,3 +52,8 @@ def parse_number(field: str) -> float:
     if not _NUMBER.fullmatch(field):
         raise ValueError(f"not a number: {field!r}")
     return float(field)
+
+
+def is_ascii_integer(field: str) -> bool:
+    """Whether `field` is ASCII digits only ('12', '0042'; not '-1', '1_0', '١٢' or '')."""
+    return bool(_INTEGER.fullmatch(field))
