@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.annotators import kosmos_e, rules, synthetic
-from kosmos_jax.annotators.base import ObjectWords, colour_terms
+from kosmos_jax.annotators.base import ObjectWords, colour_terms, terms
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.instruct.sample import View
 from kosmos_jax.instruct.single import single_samples
@@ -41,6 +41,12 @@ def test_kosmos_e_words_and_junk():
     assert single_samples(view, "colour")[0].instruction == "Grasp the black object with yellow details."
     assert [s.instruction for s in single_samples(view, "part")] == [
         "Grasp the bridge of the sunglasses.", "Grasp the whole object."]
+
+
+def test_terms_of_a_phrase():
+    assert terms("The Navy-Blue  driver's cap.", {"the"}) == ("navy-blue", "driver's", "cap")
+    assert terms("cap and cap", ()) == ("cap", "and", "cap")  # order and repeats kept
+    assert colour_terms("Grey and light-blue, with some RED accents.") == {"gray", "light-blue", "red"}
 
 
 def test_kosmos_e_reader_annotations_give_the_same_words():

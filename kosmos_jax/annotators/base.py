@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from typing import Mapping
+from typing import Collection, Mapping
 
 WORD_KINDS = ("name", "colour", "shape", "purpose", "strategy")
 
@@ -59,6 +59,12 @@ def normalise_text(text: str) -> str:
     return re.sub(r"\s+", " ", str(text)).strip().rstrip(".").strip().lower()
 
 
+def terms(text: str, drop: Collection[str] = ()) -> tuple[str, ...]:
+    """The words of `text` in order, normalised ("navy-blue" and "driver's" are one word each),
+    without those in `drop`."""
+    return tuple(w for w in re.findall(r"[a-z0-9]+(?:['-][a-z0-9]+)*", normalise_text(text)) if w not in drop)
+
+
 _COLOUR_FILLER = {"and", "with", "details", "detail", "accents", "accent", "a", "an", "the", "of", "some", "object"}
 
 
@@ -68,5 +74,4 @@ _COLOUR_SPELLINGS = {"grey": "gray", "colour": "color"}
 def colour_terms(colour: str) -> frozenset[str]:
     """The colour words of a colour phrase: "green, yellow, and silver" -> {green, yellow, silver}
     ("grey" and "gray" are one word)."""
-    tokens = re.findall(r"[a-z]+(?:-[a-z]+)?", normalise_text(colour))
-    return frozenset(_COLOUR_SPELLINGS.get(t, t) for t in tokens if t not in _COLOUR_FILLER)
+    return frozenset(_COLOUR_SPELLINGS.get(t, t) for t in terms(colour, _COLOUR_FILLER))

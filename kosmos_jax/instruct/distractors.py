@@ -12,12 +12,11 @@ first `count` candidates are taken, the paper's uniform random choice.
 from __future__ import annotations
 
 import dataclasses
-import re
 from typing import Callable
 
 import numpy as np
 
-from kosmos_jax.annotators.base import ObjectWords, colour_terms, normalise_text
+from kosmos_jax.annotators.base import ObjectWords, colour_terms, terms
 
 WORD_CLASH_KINDS = ("name", "colour", "shape", "purpose", "strategy")
 # Words that do not tell two objects apart; "grasp" and "object" come from whole instruction
@@ -45,7 +44,7 @@ def _field_text(words: ObjectWords, kind: str) -> str | None:
 
 def content_words(text: str) -> tuple[str, ...]:
     """The words of a phrase that describe the object, in order: lower case, stop words dropped."""
-    return tuple(w for w in re.findall(r"[a-z0-9]+(?:['-][a-z0-9]+)*", normalise_text(text)) if w not in STOP_WORDS)
+    return terms(text, STOP_WORDS)
 
 
 def phrases_clash(first: str, second: str, same_head: bool = False) -> bool:
