@@ -285,3 +285,13 @@ def test_grasp_success_without_any_ground_truth(backend, wh_policy):
     assert np.asarray(ok).tolist() == [False, False] and np.asarray(best).tolist() == [0.0, 0.0]
     assert grasp_success(pred[:, [0, 1, 4]] if wh_policy != "predicted" else pred, np.zeros((2, 0, 5)),
                          np.zeros((2, 0), bool), backend=backend, wh_policy=wh_policy).shape == (2,)
+    if wh_policy == "predicted":  # checked as with ground truths: [B, 3] has no w, h to keep
+        with pytest.raises(ValueError, match="'predicted' needs predictions"):
+            grasp_success(pred[:, [0, 1, 4]], np.zeros((2, 0, 5)), np.zeros((2, 0), bool), backend=backend,
+                          wh_policy=wh_policy)
+
+
+@pytest.mark.parametrize("backend", ["exact", "reference"])
+def test_rectangle_iou_of_no_ground_truth_is_empty(backend):
+    pred = jnp.array([[100.0, 100.0, 20.0, 10.0, 0.0], [50.0, 60.0, 20.0, 10.0, 0.3]])
+    assert rectangle_iou(pred[:, None], jnp.zeros((2, 0, 5)), backend).shape == (2, 0)

@@ -56,7 +56,7 @@ def _borrowed_size(pred, gts, gt_mask, wh_policy):
         wh = gts[..., 2:4]
     elif wh_policy == "kosmos_e":
         count = jnp.maximum(jnp.sum(gt_mask, axis=1, keepdims=True), 1)
-        widest = jnp.max(jnp.where(gt_mask, gts[..., 2], -jnp.inf), axis=1, keepdims=True)
+        widest = jnp.max(jnp.where(gt_mask, gts[..., 2], -jnp.inf), axis=1, keepdims=True, initial=-jnp.inf)
         mean_jaw = jnp.sum(jnp.where(gt_mask, gts[..., 3], 0.0), axis=1, keepdims=True) / count
         wh = jnp.broadcast_to(jnp.stack([widest, mean_jaw], axis=-1), gts[..., 2:4].shape)
     else:
@@ -85,8 +85,9 @@ def _success(pred, gts, gt_mask, angle_threshold, iou_threshold, backend, wh_pol
     else:
         iou = reference_iou(predicted_rectangles(pred, gts, gt_mask, wh_policy), gts, max_rows)
     angle_ok = geometry.angle_difference(pred[:, None, -1], gts[..., 4]) <= angle_threshold + ANGLE_TOLERANCE
-    # One reduction serves both outputs (a second one over the IoU splits XLA's fusion).
-    best = jnp.max(jnp.where(gt_mask & angle_ok & ~jnp.isnan(iou), iou, -1.0), axis=1)
+    # One reduction serves both outputs (a second one over the IoU splits XLA's fusion); `initial`
+    # makes it defined for M = 0, where no prediction succeeds.
+    best = jnp.max(jnp.where(gt_mask & angle_ok & ~jnp.isnan(iou), iou, -1.0), axis=1, initial=-1.0)
     return best > iou_threshold, jnp.maximum(best, 0.0)
 
 
@@ -118,9 +119,6 @@ def grasp_success(
     if gt_mask.shape != gts.shape[:2]:
         raise ValueError(f"gt_mask must be {gts.shape[:2]}; got {gt_mask.shape}")
     dtype = gts.dtype if jnp.issubdtype(gts.dtype, jnp.floating) else jnp.float32
-    if gts.shape[1] == 0:  # no ground truth at all: nothing to match (and max over nothing is undefined)
-        success, best = jnp.zeros(gts.shape[0], bool), jnp.zeros(gts.shape[0], dtype)
-        return (success, best) if return_iou else success
     success, best = _success(
         pred.astype(dtype), gts.astype(dtype), gt_mask,
         jnp.asarray(math.radians(angle_threshold_deg), dtype), jnp.asarray(iou_threshold, dtype),
