@@ -127,7 +127,7 @@ def colour_names(image, grasps=None, min_share: float = 0.2, max_names: int = 3,
 
 def words_from_pixels(image, grasps=None, **options) -> ObjectWords:
     """ObjectWords with the colour computed from pixels (the other kinds need another annotator)."""
-    return ObjectWords(colour=colour_phrase(colour_names(image, grasps, **options)) or None)
+    return ObjectWords(colour=colour_phrase(colour_names(image, grasps, **options)))
 
 
 def position_from_grasps(grasps, width: int, height: int) -> str:
