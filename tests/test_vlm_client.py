@@ -1,11 +1,14 @@
-"""The VLM client against real HTTP servers started by the test on 127.0.0.1."""
+"""The VLM client against real HTTP servers started by the test on 127.0.0.1 (and a stand-in
+urlopen for the failures a local server cannot cause on demand, such as a connect time-out)."""
 
 import base64
+import http.client
 import http.server
 import json
 import socket
 import threading
 import time
+import urllib.error
 
 import numpy as np
 import pytest
@@ -213,6 +216,26 @@ def test_broken_answers_every_time_are_a_vlm_error_naming_the_url(tmp_path, fail
     assert message.endswith("on all 3 tries") and not isinstance(raised.value, vlm.VLMTimeoutError)
     assert sleeps == [0.05, 0.1]
     assert not list((tmp_path / "cache").rglob("*.json"))
+
+
+@pytest.mark.parametrize("failure, timed_out", [
+    (urllib.error.URLError(TimeoutError("timed out")), True),  # while connecting
+    (TimeoutError("timed out"), True),  # while reading the reply
+    (urllib.error.URLError(ConnectionRefusedError(111, "refused")), False),
+    (ConnectionResetError(104, "reset"), False),
+    (http.client.IncompleteRead(b"{"), False),
+])
+def test_transport_failures_are_retried_and_classified(monkeypatch, failure, timed_out):
+    def urlopen(request, timeout):
+        raise failure
+
+    monkeypatch.setattr(vlm.urllib.request, "urlopen", urlopen)
+    sleeps = []
+    c = vlm.VLMClient("http://127.0.0.1:9/v1", "test-vlm", max_retries=2, backoff_s=0.05, sleep=sleeps.append)
+    with pytest.raises(vlm.VLMError) as raised:
+        c.ask(IMAGE, "prompt")
+    assert isinstance(raised.value, vlm.VLMTimeoutError) == timed_out
+    assert raised.value.__cause__ is failure and c.calls == 3 and sleeps == [0.05, 0.1]
 
 
 @pytest.mark.parametrize("body, message", [

@@ -25,7 +25,6 @@ import json
 import os
 import pathlib
 import re
-import socket
 import tempfile
 import time
 import urllib.error
@@ -186,14 +185,11 @@ class VLMClient:
                 if error.code != 429 and error.code < 500:
                     detail = error.read()[:200].decode("utf-8", "replace")
                     raise VLMError(f"{self._url()} answered HTTP {error.code}: {detail!r}") from None
-            except (TimeoutError, socket.timeout) as error:
-                last, timed_out = error, True
-            except urllib.error.URLError as error:
-                last = error
-                timed_out = isinstance(error.reason, (TimeoutError, socket.timeout))
-            except (http.client.HTTPException, OSError) as error:
-                # raised outside urllib's URLError wrapping: RemoteDisconnected (closed without a
-                # reply), BadStatusLine (not HTTP), IncompleteRead, a reset while reading the body
+            except OSError as error:
+                # a URLError wraps what went wrong while connecting in its `reason`; a time-out,
+                # reset or RemoteDisconnected (closed without a reply) later on comes bare
+                last, timed_out = error, isinstance(getattr(error, "reason", error), TimeoutError)
+            except http.client.HTTPException as error:  # BadStatusLine (not HTTP), IncompleteRead
                 last, timed_out = error, False
         kind = VLMTimeoutError if timed_out else VLMError
         what = f"timed out after {self.timeout_s} s" if timed_out else f"failed ({last!r})"
