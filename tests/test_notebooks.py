@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import pathlib
+import tempfile
 
 import pytest
 
@@ -21,6 +22,7 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
     cells = [c for c in notebook["cells"] if c["cell_type"] == "code"]
     assert all(not c.get("outputs") for c in cells), f"{path.name} is committed with outputs; clear them"
     monkeypatch.chdir(path.parent)  # as Jupyter runs it
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # what a notebook writes to a temp folder goes too
     namespace: dict = {"__name__": "__main__"}
     for number, cell in enumerate(cells):
         source = "".join(cell["source"])
