@@ -150,7 +150,9 @@ def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys, monkeypatch):
     centre = [r for r in rows if r["predictor"] == "image_centre" and r["protocol"] == "honest"]
     assert min(r["mean"] for r in oracle) > max(r["mean"] for r in centre)
     assert all({"skipped_views", "empty_folds"} <= set(r) for r in rows)
-    assert all(r["empty_folds"] == 5 - len(r["per_fold"]) for r in rows)
+    made = {"honest": 1, "paper": 3 * 3}  # views a photo gives: its centre crop; 3 rotations x 3 shifts
+    assert all(r["views"] + r["skipped_views"] == r["photos"] * made[r["protocol"]] for r in rows)
+    assert all(r["empty_folds"] == 0 for r in rows if r["skipped_views"] == 0)  # every fold holds views
     out = capsys.readouterr().out
     assert "image-wise" in out and demo.skipped_note(rows) in out
 
