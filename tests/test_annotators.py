@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.annotators import kosmos_e, rules, synthetic
-from kosmos_jax.annotators.base import ObjectWords, colour_terms, terms
+from kosmos_jax.annotators.base import MissingWordsError, ObjectWords, colour_terms, require, terms
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.instruct.sample import View
 from kosmos_jax.instruct.single import single_samples
@@ -142,6 +142,13 @@ def test_empty_words_are_no_words():
     assert not ObjectWords(sentences={"colour": ""}).has("colour")
     assert not ObjectWords(parts=("", None)).has("part")
     assert ObjectWords(colour="red").has("colour") and ObjectWords(parts=(None, "handle")).has("part")
+
+
+def test_unknown_words_say_why():
+    words = ObjectWords(name="cup", unknown={"colour": "no pixel differs from the background"})
+    assert not words.has("colour") and require(words, "name", "pcd0104") is words
+    with pytest.raises(MissingWordsError, match=r"'pcd0104' has no 'colour' words \(no pixel differs"):
+        require(words, "colour", "pcd0104")
 
 
 def test_rule_colour_errors():

@@ -273,11 +273,11 @@ def test_each_record_joins_the_image_it_was_made_from(written, source):
     stats, splits_on_disk = written
     config = BuildConfig(source=str(source), split="object", fold=1, augmentations=2)
     photos = build_module.read_photos(source)
-    _, words, lacking = build_module.object_words(source, None, photos)
+    _, words = build_module.object_words(source, None, photos)
     views, _ = build_module.split_views(config, photos, words)
     single, multi = build_module.sample_stage.parse_kinds(("all",))
     for name, stored in splits_on_disk.items():
-        made = [example for _, example in build_module._examples(config, views[name], single, multi, name, lacking)]
+        made = [example for _, example in build_module._examples(config, views[name], single, multi, name)]
         assert len(made) == len(stored)
         rows = {}
         for number, example in enumerate(made):

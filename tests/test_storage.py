@@ -1,6 +1,7 @@
 """TFDS array_record builders (no TensorFlow) and the grain pipeline: round trips, image tables,
-shards, resume, atomic writes."""
+shards, resume, atomic writes; the samples of a split."""
 
+import dataclasses
 import json
 import sys
 
@@ -8,8 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
+from kosmos_jax.annotators.base import MissingWordsError, ObjectWords
 from kosmos_jax.data import cornell
+from kosmos_jax.instruct.sample import View
 from kosmos_jax.storage import pipeline
+from kosmos_jax.storage.samples import MosaicCounts, split_samples
 from kosmos_jax.storage.images import digest, png_bytes
 from kosmos_jax.storage.tfds_builders import (CORNELL_SPLIT, build_cornell, dataset_folder, make_config, open_cornell,
                                               open_splits, write_instruct_grasp)
@@ -356,3 +360,33 @@ def test_an_interrupted_write_leaves_no_dataset(tmp_path):
     # after all that, the dataset is written from scratch
     path = write_instruct_grasp(records, tmp_path, config, finish=lambda folder: (folder / "extra.txt").write_text("x"))
     assert len(open_splits(path)["train"]) == 6 and (path / "extra.txt").read_text() == "x"
+
+
+# -- samples of a split -------------------------------------------------------------------------
+
+def _colour_views(colours):
+    """One 32 px view per colour (None: its colour is unknown, with a reason), distinct names."""
+    views = []
+    for number, colour in enumerate(colours):
+        unknown = {"colour": f"photo p{number}: no pixel differs"} if colour is None else {}
+        words = ObjectWords(name=f"thing{number}", colour=colour, unknown=unknown)
+        views.append(View(f"p{number}", np.full((32, 32, 3), number, np.uint8), np.array([[16.0, 16, 8, 4, 0]]),
+                          words, object_id=number))
+    return views
+
+
+def test_samples_of_unknown_words_are_skipped_and_counted():
+    views = _colour_views(["red", "green", None, "blue", "yellow", "purple"])
+    mosaics, skipped = MosaicCounts(), {}
+    made = list(split_samples(views, ("name", "colour"), ("colour",), 0, "train", mosaics, skipped=skipped))
+    colour = [s for _, s in made if s.kind == "colour" and s.scene == "single"]
+    assert [s.photo_ids for s in colour] == [(v.photo_id,) for v in views if v.photo_id != "p2"]
+    assert sum(s.kind == "name" for _, s in made) == len(views)  # its other kinds are made
+    assert skipped == {"colour": 1, "multi-colour": 1}
+    multi = [s for _, s in made if s.scene == "multi"]
+    assert mosaics.built == len(multi) == len(views) - 1
+    assert not any("p2" in s.photo_ids for s in multi)  # unknown colour is never a distractor either
+    # words merely missing (no reason given) are still an error naming the photo
+    views[2] = dataclasses.replace(views[2], words=ObjectWords(name="thing2"))
+    with pytest.raises(MissingWordsError, match="'p2' has no 'colour' words"):
+        list(split_samples(views, ("colour",), (), 0, "train"))

@@ -9,6 +9,9 @@ Fields hold the words that fill the templates of `kosmos_jax.instruct.kinds`:
   parts one part phrase per grasp ("middle section"), aligned with the photo's grasps.
 `sentences` holds whole instruction sentences where the annotator has them (kind -> sentence,
 and "part" -> a tuple with one sentence per grasp); they are used verbatim instead of a template.
+`unknown` names the kinds an annotator could not derive, each with the reason (kind -> "photo
+pcd0104 (.../pcd0104r.png): no pixel differs from the background ..."): the samples of those kinds
+are left out for the photo (and counted), where words that are merely missing are an error.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ class ObjectWords:
     strategy: str | None = None
     parts: tuple[str | None, ...] = ()
     sentences: Mapping[str, object] = dataclasses.field(default_factory=dict)
+    unknown: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
     def has(self, kind: str) -> bool:
         """Whether there are words for `kind`; an empty or blank phrase is no words."""
@@ -49,6 +53,9 @@ def require(words: ObjectWords | None, kind: str, photo_id: str) -> ObjectWords:
     """`words` if it can make an instruction of `kind`, else an error naming the photo and kind."""
     if words is None:
         raise MissingWordsError(f"photo {photo_id!r} has no annotation at all; cannot make a {kind!r} instruction")
+    if kind in words.unknown:
+        raise MissingWordsError(f"photo {photo_id!r} has no {kind!r} words ({words.unknown[kind]}); "
+                                f"cannot make a {kind!r} instruction")
     if not words.has(kind):
         raise MissingWordsError(f"photo {photo_id!r} has no {kind!r} words; cannot make a {kind!r} instruction")
     return words

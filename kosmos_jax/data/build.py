@@ -155,23 +155,22 @@ def _synthetic(path: pathlib.Path, photos) -> dict:
     return words
 
 
-def _rules(source: pathlib.Path, photos) -> tuple[dict, dict]:
-    """Colour words from pixels: ({photo id: ObjectWords}, {photo id: (kinds lacking, reason)}).
+def _rules(source: pathlib.Path, photos) -> dict:
+    """Colour words from pixels: {photo id: ObjectWords}.
 
-    A photo whose pixels name no colour gets no colour words (its colour kinds are left out);
-    anything else wrong with a photo is an error naming it and its file."""
+    A photo whose pixels name no colour gets its colour marked unknown, with the reason (its
+    colour kinds are left out); anything else wrong with a photo is an error naming it and its file."""
     files = {f.id: f.rgb for f in cornell.find_photos(source)}
-    words, lacking = {}, {}
+    words = {}
     for photo in photos:
         where = f"photo {photo.id} ({files.get(photo.id) or 'no image file'})"
         try:
             words[photo.id] = rule_words.words_from_pixels(photo.rgb, photo.grasps)
         except rule_words.NoColourError as error:
-            words[photo.id] = ObjectWords()
-            lacking[photo.id] = (("colour",), f"{where}: {error}")
+            words[photo.id] = ObjectWords(unknown={"colour": f"{where}: {error}"})
         except ValueError as error:
             raise ValueError(f"{where}: {error}") from error
-    return words, lacking
+    return words
 
 
 def word_source(source: pathlib.Path, annotations: str | None) -> tuple[str, pathlib.Path | None]:
@@ -190,14 +189,20 @@ def word_source(source: pathlib.Path, annotations: str | None) -> tuple[str, pat
     return ("synthetic", meta) if meta.is_file() else ("rules", None)
 
 
-def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict, dict]:
-    """(word source, {photo id: ObjectWords}, {photo id: (kinds its words lack, reason)})."""
+def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict]:
+    """(word source, {photo id: ObjectWords})."""
     name, path = word_source(source, annotations)
     if name == "synthetic":
-        return name, _synthetic(path, photos), {}
+        return name, _synthetic(path, photos)
     if name == "kosmos_e":
-        return name, _kosmos_e(path, photos), {}
-    return (name, *_rules(source, photos))
+        return name, _kosmos_e(path, photos)
+    return name, _rules(source, photos)
+
+
+def words_unknown(words: dict) -> dict:
+    """{photo id: {"kinds": [...], "reason": ...}} of the photos whose words mark kinds unknown."""
+    return {photo: {"kinds": sorted(w.unknown), "reason": "; ".join(dict.fromkeys(w.unknown.values()))}
+            for photo, w in sorted(words.items()) if w.unknown}
 
 
 # -- splits and views ---------------------------------------------------------------------------
@@ -325,13 +330,12 @@ def reused_stats(dataset_dir: pathlib.Path, identity: dict) -> dict:
 
 # -- the build ----------------------------------------------------------------------------------
 
-def _examples(config: BuildConfig, views, single, multi, split, lacking, mosaics=None, skipped=None):
+def _examples(config: BuildConfig, views, single, multi, split, mosaics=None, skipped=None):
     """(sample, example) of a split, in a fixed order."""
     format_config = config.format_config()
     tag = sample_stage.SPLIT_TAGS[split]
-    lacking_kinds = {photo: kinds for photo, (kinds, _) in lacking.items()}
     samples = sample_stage.split_samples(views, single, multi, config.seed, split, mosaics, config.unambiguous,
-                                         lacking=lacking_kinds, skipped=skipped)
+                                         skipped=skipped)
     for number, (_, sample) in enumerate(samples):
         rng = np.random.default_rng([config.seed, 99, tag, number])  # the same in both passes
         for example in format_sample(sample, format_config, rng):
@@ -403,7 +407,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             return reused_stats(dataset_dir, identity)
 
     photos = read_photos(source)
-    word_source_name, words, lacking = object_words(source, config.annotations, photos)
+    word_source_name, words = object_words(source, config.annotations, photos)
     views, view_counts = split_views(config, photos, words)
 
     # pass 1: samples, checks, statistics, the tokenizer's corpus
@@ -417,7 +421,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         photo_ids, object_ids = set(), set()
         skipped: dict[str, int] = {}
         last = None
-        for sample, example in _examples(config, views[split], single, multi, split, lacking, mosaics, skipped):
+        for sample, example in _examples(config, views[split], single, multi, split, mosaics, skipped):
             if sample is not last:
                 label = sample_stage.kind_label(sample)
                 samples_by_kind[label] = samples_by_kind.get(label, 0) + 1
@@ -452,8 +456,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     stats["config"] = {**dataclasses.asdict(config), "fold_seed": config.folds_seed(), "word_source": word_source_name,
                        "single_kinds": list(single), "multi_kinds": list(multi), "photos": len(photos)}
     stats["identity"] = identity
-    stats["photos_without_words"] = {photo: {"kinds": list(kinds), "reason": reason}
-                                     for photo, (kinds, reason) in sorted(lacking.items())}
+    stats["photos_without_words"] = words_unknown(words)
     if not corpus:
         raise ValueError("the training split has no examples; nothing to train a tokenizer on or to write")
 
@@ -473,7 +476,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     spots = {split: dict.fromkeys(spot_numbers(stats["splits"][split]["examples"])) for split in ("train", "test")}
 
     def records(split):
-        for number, (sample, example) in enumerate(_examples(config, views[split], single, multi, split, lacking)):
+        for number, (sample, example) in enumerate(_examples(config, views[split], single, multi, split)):
             encoded = layout.encode_example(example, tokenizer, format_config)
             lengths[split].append(int(encoded["length"]))
             truncated[split] += int(encoded["truncated"])

@@ -10,7 +10,7 @@ a mosaic never mixes photos of two splits. Randomness is a numpy Generator seede
 from __future__ import annotations
 
 import dataclasses
-from typing import Collection, Iterable, Iterator, Mapping, Sequence
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -75,22 +75,19 @@ def split_samples(
     mosaics: MosaicCounts | None = None,
     unambiguous: bool = True,
     position_mode: str = "quadrant",
-    lacking: Mapping[str, Collection[str]] | None = None,
     skipped: dict[str, int] | None = None,
 ) -> Iterator[tuple[int, Sample]]:
     """(view index, sample) of every sample of the split, in a fixed order.
 
     A mosaic the split cannot make (too few views whose words differ from the target's) is
     skipped and counted in `mosaics`; missing words are an error naming the photo, except the
-    kinds `lacking` lists for a photo (photo id -> kinds whose words could not be derived): those
-    samples (single and mosaic with that photo as target) are left out and counted in `skipped`
-    by kind label. Such a photo is never a distractor for those kinds (its words cannot be shown
-    to differ).
+    kinds its words mark unknown (`ObjectWords.unknown`): those samples (single and mosaic with
+    that photo as target) are left out and counted in `skipped` by kind label. Such a photo is
+    never a distractor for those kinds (without words it cannot be shown to differ).
     """
     tag = SPLIT_TAGS[split]
-    lacking = lacking or {}
     for index, view in enumerate(views):
-        without = lacking.get(view.photo_id, ())
+        without = view.words.unknown if view.words is not None else {}
         for kind in single_kinds:
             if kind in without:
                 _count(skipped, kind)
