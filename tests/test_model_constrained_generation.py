@@ -11,7 +11,7 @@ import pytest
 
 from kosmos_jax import grasp_text
 from kosmos_jax.models import decode, weights
-from kosmos_jax.models.grammar import TokenConstraint, token_texts
+from kosmos_jax.models.grammar import TokenConstraint
 from kosmos_jax.text import formatter
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import train_tokenizer
@@ -48,16 +48,6 @@ def model(tokenizers):
     return weights.grow_vocabulary(model, max(t.vocab_size for t in tokenizers.values()))
 
 
-def test_token_texts_spell_what_the_tokenizer_decodes(tokenizers):
-    for tokenizer in tokenizers.values():
-        texts = token_texts(tokenizer)
-        assert len(texts) == tokenizer.vocab_size
-        assert texts[tokenizer.eos_id] == "" and texts[tokenizer.token_id("<patch_index_0012>")] == "<patch_index_0012>"
-        answer = grasp_text.format_grasp([12, 200, 30, 20, -0.52], "xya", angle_code=False)
-        ids = tokenizer.encode(answer)
-        assert "".join(texts[i] for i in ids) == " " + answer  # SentencePiece's leading space, as "▁"
-
-
 INSTRUCTIONS = ("Grasp the black remote control.", "Grasp the handle of the mug.", "Grasp it.",
                 "Grasp the object with a rotation angle of a_156 radians.")
 
@@ -79,7 +69,7 @@ def prompts(tokenizer, slots: int, cue: str = ""):
 
 
 def vocabulary_texts(tokenizer, model):
-    return token_texts(tokenizer) + [""] * (model.config.text.vocab_size - tokenizer.vocab_size)
+    return tokenizer.piece_texts() + [""] * (model.config.text.vocab_size - tokenizer.vocab_size)
 
 
 def constrained_rows(tokenizer, model, constraint, cue="", seeds=3):

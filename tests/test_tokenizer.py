@@ -125,6 +125,25 @@ def test_fairseq_scheme_shift(tmp_path):
     assert t.decode([t.bos_id] + t.encode(text) + [t.eos_id]) == text
 
 
+def test_piece_texts_spell_what_the_tokenizer_decodes(digits_tokenizer, values_tokenizer, tmp_path):
+    answer = grasp_text.format_grasp([12, 200, 30, 20, -0.52], "xya", angle_code=False)
+    fairseq = load_tokenizer(_plain_spm(tmp_path)[0], scheme="fairseq")  # no byte pieces: plain text only
+    cases = [(digits_tokenizer, (answer, "Grasp {it} (quickly) ~now~")),  # unseen ASCII characters: byte pieces
+             (values_tokenizer, (answer,)), (fairseq, ("Grasp the remote control <patch_index_0007>",))]
+    for tokenizer, texts_in in cases:
+        texts = tokenizer.piece_texts()
+        assert len(texts) == tokenizer.vocab_size
+        assert texts[tokenizer.eos_id] == texts[tokenizer.bos_id] == texts[tokenizer.pad_id] == ""
+        assert texts[tokenizer.token_id("<patch_index_0012>")] == "<patch_index_0012>"
+        for text in texts_in:
+            ids = tokenizer.encode(text)
+            assert "".join(texts[i] for i in ids) == " " + text  # SentencePiece's leading space, as "▁"
+    texts = digits_tokenizer.piece_texts()
+    assert all(texts[i] == "" for i in special.IMAGE_SLOT_IDS)  # control pieces
+    assert "".join(texts[i] for i in digits_tokenizer.encode("cup Ü")) == " cup "  # non-ASCII bytes spell nothing
+    assert fairseq.piece_texts()[fairseq.vocab_size - len(special.SPECIAL_SYMBOLS) - 1] == ""  # <mask>
+
+
 def test_fairseq_layout_matches_kosmos2():
     layout = fairseq_layout(64000)
     assert layout["<image>"] == 64003 and layout["</image>"] == 64004 and layout["<grounding>"] == 64012

@@ -18,8 +18,8 @@ kosmos_jax.models.grammar_budget take it into account.
 
 At every step a token is allowed only if a complete answer (EOS included) still fits in the tokens
 left after it, so no state without a way out is ever entered and every answer ends in time: every
-answer parses. Tokenizer-agnostic: give the text of every token id (`token_texts` for this
-project's SentencePiece tokenizers) and the EOS id. A token that completes two fields is not used
+answer parses. Tokenizer-agnostic: give the text of every token id (`Tokenizer.piece_texts` for
+this project's SentencePiece tokenizers) and the EOS id. A token that completes two fields is not used
 up to the last field of an order relation (a register holds one value per token).
 
 SentencePiece spells the first token of a segment with a leading "▁" (layout.py encodes the
@@ -35,7 +35,6 @@ from collections.abc import Sequence
 
 import jax.numpy as jnp
 import numpy as np
-import sentencepiece as spm
 
 from kosmos_jax import grasp_text
 from kosmos_jax.models import grammar_budget as budget
@@ -358,21 +357,3 @@ class TokenConstraint:
     def finished(self, cstate):
         return jnp.zeros(cstate["state"].shape, bool)
 
-
-def token_texts(tokenizer) -> list[str]:
-    """The text of every model id of a kosmos_jax.text.tokenizer.Tokenizer, as TokenConstraint takes
-    it: '▁' as a space, a byte piece as its character when ASCII, '' for control pieces, non-ASCII
-    bytes and ids without a piece (fairseq's <pad> and <mask>)."""
-    processor = spm.SentencePieceProcessor(model_proto=tokenizer.model_proto)
-    texts = [""] * tokenizer.vocab_size
-    for piece_id in range(processor.get_piece_size()):
-        if processor.is_control(piece_id) or processor.is_unknown(piece_id):
-            continue
-        piece = processor.id_to_piece(piece_id)
-        if processor.is_byte(piece_id):
-            byte = int(piece[3:5], 16)
-            text = chr(byte) if byte < 0x80 else ""
-        else:
-            text = piece.replace("\u2581", " ")
-        texts[tokenizer.token_id(piece)] = text
-    return texts

@@ -133,6 +133,23 @@ class Tokenizer:
         """Text of model ids; <s>, <pad>, </s> and image slots are the caller's to remove."""
         return self._sp.decode([self._to_piece_id(int(i)) for i in ids])
 
+    def piece_texts(self) -> list[str]:
+        """The text of every model id, as a grammar over token strings takes it: '▁' as a space, a
+        byte piece as its character when ASCII, '' for control pieces, <unk>, non-ASCII bytes and
+        ids without a piece (fairseq's <pad> and <mask>)."""
+        texts = [""] * self.vocab_size
+        for piece_id in range(self._pieces):
+            if self._sp.is_control(piece_id) or self._sp.is_unknown(piece_id):
+                continue
+            piece = self._sp.id_to_piece(piece_id)
+            if self._sp.is_byte(piece_id):  # "<0x41>"
+                byte = int(piece[3:5], 16)
+                text = chr(byte) if byte < 0x80 else ""
+            else:
+                text = piece.replace("\u2581", " ")
+            texts[self._to_model_id(piece_id)] = text
+        return texts
+
     # -- files ------------------------------------------------------------------------------
     def save(self, path) -> pathlib.Path:
         """Write the SentencePiece model (the scheme and number mode travel in the caller's config)."""
