@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import pathlib
-import shutil
 import sys
 import time
 
@@ -32,24 +31,14 @@ CONFIG = config_flags.DEFINE_config_file("config", str(REPO / "configs" / "demo.
 
 
 def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
-    """The synthetic set under OUT, made once per (photos, seed) and reused after.
-
-    Writing is atomic, so a folder without synthetic_meta.json is what an interrupted run of an
-    older version left: it is removed (with a message) and written again. Anything else in the
-    way is an error, never deleted."""
+    """The synthetic set under OUT, made once per (photos, seed) and reused after. A set without
+    synthetic_meta.json (an older version stopped while writing it) is written again; anything else
+    in the way is an error (write_dataset's), never deleted."""
     root = out / f"synthetic_{photos}_seed{seed}"
     if (root / synthetic.META_NAME).exists():
         return root
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        if not synthetic.is_partial_dataset(root):
-            raise FileExistsError(
-                f"{root} is in the way of the demo's synthetic set: it holds no {synthetic.META_NAME} and "
-                "files the generator does not make; move it away or set --config.out elsewhere")
-        print(f"{root} holds an incomplete synthetic set (no {synthetic.META_NAME}: a run of an older "
-              "version was stopped while writing it); removing it and writing it again", file=sys.stderr)
-        shutil.rmtree(root)
     print(f"writing {photos} synthetic photos to {root}", file=sys.stderr)
-    synthetic.write_dataset(root, photos=photos, seed=seed, progress=True)
+    synthetic.write_dataset(root, photos=photos, seed=seed, overwrite=True, progress=True)
     return root
 
 

@@ -163,7 +163,7 @@ def test_demo_rewrites_a_stale_partial_set_from_older_versions(tmp_path, capsys)
     (root / "synthetic_meta.json").unlink()  # an older version was stopped before writing it
     (root / "01" / "pcd0101r.png").unlink()
     assert demo.synthetic_source(tmp_path, 2, 0) == root
-    assert "incomplete synthetic set" in capsys.readouterr().err
+    assert "writing 2 synthetic photos" in capsys.readouterr().err
     assert synthetic.read_meta(root).keys() == {"pcd0100", "pcd0101"}
     assert len(cornell.load_photos(root, load_images=False)) == 2
     assert demo.synthetic_source(tmp_path, 2, 0) == root  # complete now: reused, not written again
@@ -174,7 +174,7 @@ def test_demo_never_deletes_a_foreign_folder_in_its_way(tmp_path):
     root = tmp_path / "synthetic_2_seed0"
     (root / "01").mkdir(parents=True)
     (root / "01" / "notes.txt").write_text("keep me")
-    with pytest.raises(FileExistsError, match="synthetic_2_seed0 is in the way"):
+    with pytest.raises(ValueError, match="refusing to overwrite .*synthetic_2_seed0"):
         demo.synthetic_source(tmp_path, 2, 0)
     assert (root / "01" / "notes.txt").read_text() == "keep me"
 

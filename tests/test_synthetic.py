@@ -459,7 +459,7 @@ def test_an_interrupted_overwrite_keeps_the_old_set_whole(tmp_path, monkeypatch)
 def test_a_killed_writers_partial_folder_is_removed_by_the_next_write(tmp_path):
     finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     dead_pid = int(finished.stdout)
-    prefix = f".out.partial-{socket.gethostname()}-"
+    prefix = f".staging-out-{socket.gethostname()}-"
     dead, live = tmp_path / f"{prefix}{dead_pid}-0a1b2c3d", tmp_path / f"{prefix}{os.getpid()}-4e5f6a7b"
     for folder in (dead, live):
         (folder / "01").mkdir(parents=True)
@@ -491,6 +491,22 @@ def test_partial_dataset_is_recognised_only_when_it_holds_nothing_else(tmp_path)
     (root / "README").write_text("")
     assert not synthetic.is_partial_dataset(root)
     assert not synthetic.is_partial_dataset(tmp_path / "absent")
+
+
+def test_overwrite_replaces_what_an_older_version_left_half_written(tmp_path, capsys):
+    out = tmp_path / "out"
+    synthetic.write_dataset(out, 2, 0)
+    (out / "synthetic_meta.json").unlink()  # stopped while writing straight into out
+    (out / "01" / "pcd0101r.png").unlink()
+    with pytest.raises(ValueError, match="is not empty; pass --overwrite"):
+        synthetic.write_dataset(out, 2, 0)
+    assert synthetic.main(["--out", str(out), "--photos", "2", "--overwrite"]) == 0
+    assert synthetic.read_meta(out).keys() == {"pcd0100", "pcd0101"} and (out / "01" / "pcd0101r.png").is_file()
+    (out / "synthetic_meta.json").unlink()
+    (out / "01" / "holiday.jpg").write_bytes(b"photo")  # not the generator's: maybe not a synthetic set
+    with pytest.raises(ValueError, match="refusing to overwrite .* holds no synthetic_meta.json and files"):
+        synthetic.write_dataset(out, 2, 0, overwrite=True)
+    assert (out / "01" / "holiday.jpg").read_bytes() == b"photo"
 
 
 def test_colour_words_name_every_large_painted_area():

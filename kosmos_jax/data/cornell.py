@@ -42,6 +42,7 @@ from kosmos_jax.data import objects, text_file
 from kosmos_jax.data.photo import Photo
 
 FILE_PATTERN = re.compile(r"^(pcd\d{4})(r\.png|d\.tiff|cpos\.txt|cneg\.txt)$")
+FOLDER_PATTERN = re.compile(r"\d\d")  # the numbered folders 01 .. 10 (use fullmatch)
 
 # The 885 labelled photos of the full data set, sorted (KOSMOS-E's keys "0".."884" follow this).
 FULL_SET_IDS: tuple[str, ...] = tuple(
@@ -73,7 +74,7 @@ def find_photos(root: str | pathlib.Path) -> list[CornellFiles]:
     if not root.is_dir():
         raise FileNotFoundError(f"Cornell root {root} is not a directory")
     found: dict[str, dict[str, pathlib.Path]] = {}
-    folders = [root] + sorted(p for p in root.iterdir() if p.is_dir() and re.fullmatch(r"\d\d", p.name))
+    folders = [root] + sorted(p for p in root.iterdir() if p.is_dir() and FOLDER_PATTERN.fullmatch(p.name))
     for folder in folders:
         for path in sorted(folder.iterdir()):
             match = FILE_PATTERN.match(path.name)

@@ -16,10 +16,12 @@ writes, like the real Cornell set (see ../shared/data/README.md):
 Every object is seen in several photos (about 3.7, as in Cornell) in different poses. The same
 seed gives the same bytes in every file, and photo k does not depend on how many photos follow it.
 
-Writing is atomic: the set is made in a hidden sibling folder (`.DIR.partial-HOST-PID-*`) and
-renamed to DIR when complete, so a stopped run leaves DIR as it was (a killed writer's sibling is
-deleted by the next write). --overwrite replaces only a folder that holds synthetic_meta.json, and
-keeps the files there that the generator does not make.
+Writing is atomic (kosmos_jax.storage.publish): the set is made in a hidden sibling folder
+(`.staging-DIR-HOST-PID-*`) and renamed to DIR when complete, so a stopped run leaves DIR as it was
+(a killed writer's sibling is deleted by the next write). --overwrite replaces only a synthetic set:
+a folder that holds synthetic_meta.json, or nothing but the generator's files (what a run of an
+older version, which wrote straight into DIR, left when stopped); it keeps the files there that the
+generator does not make.
 
 API: plan(seed, photos) -> which object each photo shows; make_scene(rng, spec, background) ->
 Scene(rgb, depth, positives, negatives, meta, object_mask); write_dataset(out, photos, seed);
@@ -32,27 +34,24 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import glob
 import json
 import math
 import os
 import pathlib
 import re
-import shutil
-import socket
 import sys
-import tempfile
 import time
-import uuid
 
 import cv2
 import numpy as np
 import tifffile
 
 from kosmos_jax import geometry
+from kosmos_jax.data import cornell
 from kosmos_jax.data import synthetic_grasps as grasps_lib
 from kosmos_jax.data.synthetic_objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
 from kosmos_jax.data.synthetic_render import HEIGHT, MIN_OBJECT_HEIGHT_M, WIDTH, Background, make_background, render
+from kosmos_jax.storage import publish
 
 FIRST_NUMBER = 100  # Cornell's photos start at pcd0100
 MAX_PHOTOS = 9999 - FIRST_NUMBER + 1
@@ -60,7 +59,7 @@ PHOTOS_PER_OBJECT = ((1, 2, 3, 4, 5), (0.05, 0.05, 0.1, 0.75, 0.05))  # mean 3.7
 POSITIVES = ((2, 3, 4, 5, 6, 7), (0.05, 0.2, 0.3, 0.2, 0.15, 0.1))
 NEGATIVES = ((0, 1, 2, 3, 4), (0.03, 0.07, 0.2, 0.6, 0.1))
 META_NAME = "synthetic_meta.json"
-PHOTO_FILE = r"pcd\d{4}(r\.png|d\.tiff|cpos\.txt|cneg\.txt)"
+_PROCESSED_FILE = re.compile(r"z\.txt|backgroundMapping\.txt")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,18 +221,22 @@ def write_photo(folder: pathlib.Path, stem: str, scene: Scene) -> None:
 
 def _owned(child: pathlib.Path) -> bool:
     """Whether write_dataset makes this entry of a dataset folder (its other entries are the user's)."""
-    return child.name == META_NAME or (child.is_dir() and bool(re.fullmatch(r"\d\d|processedData", child.name)))
+    if child.name == META_NAME:
+        return True
+    return child.is_dir() and (child.name == "processedData" or bool(cornell.FOLDER_PATTERN.fullmatch(child.name)))
 
 
 def _check_out(out: pathlib.Path, overwrite: bool) -> None:
+    """Refuse an `out` that write_dataset may not replace: a file, or a folder with anything in it
+    unless `overwrite` and it is a synthetic set (complete, or what an older version left half-written)."""
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a directory")
     if out.is_dir() and any(out.iterdir()):
         if not overwrite:
             raise ValueError(f"--out {out} is not empty; pass --overwrite to replace a synthetic dataset there")
-        if not (out / META_NAME).is_file():
-            raise ValueError(
-                f"refusing to overwrite {out}: it holds no {META_NAME}, so it may not be a synthetic dataset")
+        if not ((out / META_NAME).is_file() or is_partial_dataset(out)):
+            raise ValueError(f"refusing to overwrite {out}: it holds no {META_NAME} and files the generator "
+                             "does not make, so it may not be a synthetic dataset")
 
 
 def is_partial_dataset(root) -> bool:
@@ -245,51 +248,11 @@ def is_partial_dataset(root) -> bool:
     for child in root.iterdir():
         if not _owned(child):
             return False
-        pattern = r"z\.txt|backgroundMapping\.txt" if child.name == "processedData" else PHOTO_FILE
+        pattern = _PROCESSED_FILE if child.name == "processedData" else cornell.FILE_PATTERN
         for entry in child.iterdir():
-            if not (re.fullmatch(pattern, entry.name) and entry.is_file()):
+            if not (pattern.fullmatch(entry.name) and entry.is_file()):
                 return False
     return True
-
-
-def _partial_prefix(out: pathlib.Path) -> str:
-    return f".{out.name}.partial-{socket.gethostname()}-"
-
-
-def _remove_stale_partials(out: pathlib.Path) -> None:
-    """Delete the hidden siblings that killed writers of `out` on this machine left behind."""
-    prefix = _partial_prefix(out)
-    for sibling in out.parent.glob(glob.escape(prefix) + "*"):
-        pid = sibling.name[len(prefix):].split("-")[0]
-        if pid.isdigit() and not _alive(int(pid)):
-            shutil.rmtree(sibling, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _swap_in(new: pathlib.Path, out: pathlib.Path) -> None:
-    """Put the finished dataset `new` at `out` by renaming it, so `out` never holds half of one.
-    The user's own files in a replaced `out` (anything write_dataset does not make) move across."""
-    if out.is_dir() and not any(out.iterdir()):
-        out.rmdir()
-    if not out.exists():
-        new.rename(out)
-        return
-    old = pathlib.Path(tempfile.mkdtemp(prefix=f".{out.name}.replaced-", dir=out.parent))
-    out.rename(old / out.name)
-    new.rename(out)
-    for child in sorted((old / out.name).iterdir()):
-        if not _owned(child):
-            child.rename(out / child.name)
-    shutil.rmtree(old)
 
 
 def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress: bool = False) -> dict:
@@ -298,18 +261,12 @@ def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress
         raise ValueError(f"photos must be an integer in [1, {MAX_PHOTOS}], got {photos!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    out = pathlib.Path(out)
+    out = pathlib.Path(os.path.abspath(out))  # a name to stage and rename, also for "." or "x/.."
     _check_out(out, overwrite)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale_partials(out)
-    partial = out.parent / f"{_partial_prefix(out)}{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    partial.mkdir()  # not mkdtemp: its 0700 mode would become the dataset's
-    try:
-        summary = _write_files(partial, photos, seed, progress)
-        _swap_in(partial, out)
-    finally:  # an error or Ctrl-C: nothing half-made stays behind
-        if partial.exists():
-            shutil.rmtree(partial, ignore_errors=True)
+    # an `out` that is there now passed _check_out, so it may be replaced; one that appears later may not
+    with publish.staged(out.parent, out.name, overwrite=out.exists(), keep=lambda entry: not _owned(entry)) as root:
+        (root / out.name).mkdir()  # not mkdtemp: its 0700 mode would become the dataset's
+        summary = _write_files(root / out.name, photos, seed, progress)
     return summary
 
 
