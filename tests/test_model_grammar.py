@@ -285,8 +285,11 @@ def test_the_shortest_answer_is_counted_exactly(toy_constraints):
 
 
 def test_a_vocabulary_that_cannot_spell_an_answer_is_refused():
-    with pytest.raises(ValueError, match="no token"):
+    with pytest.raises(ValueError, match=r"no sequence of the vocabulary's tokens spells a whole xya grasp answer "
+                                         r"\(angle_code=True, image_size=224\)"):
         TokenConstraint(SPECIALS + ["hello", "world"], EOS, "xya")
+    with pytest.raises(ValueError, match="whole tlbra location answer"):  # no token at all: relations too
+        TokenConstraint(SPECIALS + ["hello", "world"], EOS, "tlbra", part="location")
     # every piece of the answer is there but the angle's digits: refused at construction, by name
     vocab = [t for t in toy_vocabulary() if not re.fullmatch(r"[-.\d]+", t) or t in ("1,y_2",)]
     with pytest.raises(ValueError, match="whole xya grasp answer"):

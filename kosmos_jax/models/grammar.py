@@ -30,13 +30,14 @@ instruction, the cue and the value each on their own), so the answer may start w
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Sequence
 
 import jax.numpy as jnp
 import numpy as np
 
-from kosmos_jax import grasp_text
+from kosmos_jax import geometry, grasp_text
 from kosmos_jax.models import grammar_budget as budget
 from kosmos_jax.text import formatter
 
@@ -87,7 +88,8 @@ def _ints(name, lo, hi, width=0):
 def field_domains(representation: str, angle_code: bool, image_size: int) -> dict[str, Field]:
     """Exactly the values parse_grasp accepts, each field alone (relations restrict them jointly):
     centre 0..S-1; w, h 1..2S; box corners -S..2S; patch indices 0..1023 in four digits; angle codes
-    0..255, or radians with two decimals in [-pi/2, pi/2] ("-0.00" included, as format_angle writes it)."""
+    0..ANGLE_BINS-1, or radians with two decimals in [-pi/2, pi/2] ("-0.00" included, as
+    format_angle writes it)."""
     last = image_size - 1
     cells = grasp_text.PATCH_GRID * grasp_text.PATCH_GRID
     fields = {n: _ints(n, 0, last) for n in ("x", "y")}
@@ -95,9 +97,10 @@ def field_domains(representation: str, angle_code: bool, image_size: int) -> dic
     fields.update(w=_ints("w", 1, 2 * image_size), h=_ints("h", 1, 2 * image_size))
     fields.update(ul=_ints("ul", 0, cells - 1, 4), lr=_ints("lr", 0, cells - 1, 4))
     if angle_code:
-        fields["a"] = _ints("a", 0, 255)
+        fields["a"] = _ints("a", 0, geometry.ANGLE_BINS - 1)
     else:
-        hundredths = tuple(range(-157, 158))
+        limit = math.floor(100 * math.pi / 2)  # two decimals within [-pi/2, pi/2]
+        hundredths = tuple(range(-limit, limit + 1))
         fields["a"] = Field("a", tuple(f"{v / 100:.2f}" for v in hundredths) + ("-0.00",), hundredths + (0,))
     return fields
 
@@ -166,9 +169,8 @@ class _CharMachine:
         for piece in reversed(pieces):
             if isinstance(piece, str):
                 states = [self._new() for _ in piece]
-                end = after
                 for i, ch in enumerate(piece):
-                    self.edges[(states[i], ch)] = (states[i + 1] if i + 1 < len(piece) else end, -1, -1)
+                    self.edges[(states[i], ch)] = (states[i + 1] if i + 1 < len(piece) else after, -1, -1)
                 after, after_first = states[0], piece[0]
                 continue
             field_index -= 1
@@ -287,9 +289,6 @@ class TokenConstraint:
         stored = [index[name] for r in kept for name in (r.lower, r.upper)]
         tokens = [(text, i) for i, text in enumerate(token_texts) if i != eos_id and END not in text]
         ids, trans, store_field, store_value = machine.run_tokens([*tokens, (END, eos_id)], max(stored, default=-1))
-        what = f"{representation} {part} answer (angle_code={angle_code}, image_size={image_size})"
-        if not (ids != eos_id).any():
-            raise ValueError(f"no token of the vocabulary can start or continue a {what}")
         self.token_ids = np.asarray(ids, np.int32)  # [R]
         self.trans, self.store_field, self.store_value = trans, store_field, store_value  # [S, R]; trans 0 = dead
         self.column_of_token = np.full(self.vocab_size, -1, np.int32)
@@ -309,7 +308,8 @@ class TokenConstraint:
         self.tables = budget.tables(automaton, pairs)
         self.min_tokens = self.tables.min_tokens
         if self.min_tokens >= budget.INF:
-            raise ValueError(f"no sequence of the vocabulary's tokens spells a whole {what}")
+            raise ValueError(f"no sequence of the vocabulary's tokens spells a whole {representation} {part} answer "
+                             f"(angle_code={angle_code}, image_size={image_size})")
 
     @classmethod
     def for_part(cls, token_texts: Sequence[str], eos_id: int, config: formatter.FormatConfig, part: str,
