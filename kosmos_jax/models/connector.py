@@ -13,7 +13,7 @@ from flax import nnx
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.decoder import TextAttention
-from kosmos_jax.models.layers import dense
+from kosmos_jax.models.layers import ACT, dense
 from kosmos_jax.models.sharding import constrain
 
 
@@ -32,4 +32,4 @@ class ImageToTextProjection(nnx.Module):
         queries = jnp.broadcast_to(self.latent_query[...].astype(tokens.dtype), (tokens.shape[0], *self.latent_query.shape))
         keys = jnp.concatenate([tokens, queries], axis=1)
         out, _ = self.x_attn(queries, mask=None, kv_input=keys)
-        return constrain(out.astype(jnp.float32), ("batch", "length", "act_embed"))
+        return constrain(out.astype(jnp.float32), ACT)

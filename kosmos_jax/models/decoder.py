@@ -14,10 +14,8 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import TextConfig
-from kosmos_jax.models.layers import HEADS, LayerNorm, dense, dot_product_attention, gelu_exact, split_heads
+from kosmos_jax.models.layers import ACT, HEADS, LayerNorm, dense, dot_product_attention, gelu_exact, split_heads
 from kosmos_jax.models.sharding import constrain, logical
-
-ACT = ("batch", "length", "act_embed")
 
 
 class TextAttention(nnx.Module):

@@ -13,6 +13,7 @@ from flax import nnx
 
 from kosmos_jax.models.sharding import constrain, logical
 
+ACT = ("batch", "length", "act_embed")  # [B, T, D]: the residual stream and the connector output
 HEADS = ("batch", "length", "act_heads", "kv")  # [B, T, H, Dh]: attention outputs and the KV cache
 
 

@@ -7,10 +7,8 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import VisionConfig
-from kosmos_jax.models.layers import LayerNorm, dense, dot_product_attention, quick_gelu, split_heads
+from kosmos_jax.models.layers import ACT, LayerNorm, dense, dot_product_attention, quick_gelu, split_heads
 from kosmos_jax.models.sharding import constrain, logical
-
-ACT = ("batch", "length", "act_embed")
 
 
 class VisionEmbeddings(nnx.Module):
