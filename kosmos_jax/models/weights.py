@@ -15,7 +15,6 @@ from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
-import ml_dtypes  # registers bfloat16 with numpy: safetensors' numpy reader needs it for bf16 files
 import numpy as np
 from flax import nnx
 from safetensors import safe_open
@@ -71,15 +70,8 @@ def _weight_files(folder: pathlib.Path) -> dict[str, pathlib.Path]:
         return {key: single for key in f.keys()}
 
 
-def _as_float32(tensor: np.ndarray) -> np.ndarray:
-    """Floating tensors of any width (bfloat16, float16, float64) as float32; others unchanged."""
-    if np.issubdtype(tensor.dtype, np.floating) or tensor.dtype == ml_dtypes.bfloat16:
-        return tensor.astype(np.float32)
-    return tensor
-
-
 def read_tensors(folder: str | pathlib.Path) -> dict[str, np.ndarray]:
-    """Every tensor of the checkpoint; floating ones as float32."""
+    """Every tensor of the checkpoint, in its stored dtype (params_from_tensors casts to float32)."""
     folder = pathlib.Path(folder)
     by_file: dict[pathlib.Path, list[str]] = {}
     for key, file in _weight_files(folder).items():
@@ -90,7 +82,7 @@ def read_tensors(folder: str | pathlib.Path) -> dict[str, np.ndarray]:
             raise FileNotFoundError(f"{file}: shard named in the index is missing")
         with safe_open(file, framework="np") as f:
             for key in keys:
-                tensors[key] = _as_float32(f.get_tensor(key))
+                tensors[key] = f.get_tensor(key)
     return tensors
 
 
