@@ -91,6 +91,10 @@ def test_synthetic_metadata_words(tmp_path):
         assert len(w.parts) == len(cpos) // 8  # one part per positive rectangle
     with pytest.raises(ValueError, match=r"pcd9.*lacks \['strategy'"):
         synthetic.words_from_meta({k: v for k, v in next(iter(meta.values())).items() if k != "strategy"}, "pcd9")
+    document = {"photos": meta}
+    assert synthetic.words_from_document(document, "here.json") == words
+    with pytest.raises(ValueError, match=r"here.json: no 'photos' object"):
+        synthetic.words_from_document({"0": {}}, "here.json")
 
 
 def textured_background(rng, size=224):

@@ -41,8 +41,12 @@ def read_meta_words(path: str | pathlib.Path) -> dict[str, ObjectWords]:
     path = pathlib.Path(path)
     if path.is_dir():
         path = path / "synthetic_meta.json"
-    document = json.loads(path.read_text())
+    return words_from_document(json.loads(path.read_text()), path)
+
+
+def words_from_document(document: Any, source: str | pathlib.Path = "<memory>") -> dict[str, ObjectWords]:
+    """{photo id: ObjectWords} from the parsed JSON of a metadata file (`source` names it in errors)."""
     photos = document.get("photos") if isinstance(document, dict) else None
     if not isinstance(photos, dict):
-        raise ValueError(f"{path}: no 'photos' object; not a synthetic_meta.json")
-    return {photo_id: words_from_meta(meta, f"{path}:{photo_id}") for photo_id, meta in photos.items()}
+        raise ValueError(f"{source}: no 'photos' object; not a synthetic_meta.json")
+    return {photo_id: words_from_meta(meta, f"{source}:{photo_id}") for photo_id, meta in photos.items()}
