@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import math
 import pathlib
@@ -53,7 +54,7 @@ from kosmos_jax.annotators import rules as rule_words
 from kosmos_jax.annotators import synthetic as synthetic_words
 from kosmos_jax.annotators.base import ObjectWords
 from kosmos_jax.data import cornell, splits
-from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, read_annotations
+from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, parse_annotations
 from kosmos_jax.storage import identity as identity_lib
 from kosmos_jax.storage import images as image_table
 from kosmos_jax.storage import samples as sample_stage
@@ -120,50 +121,87 @@ class BuildConfig:
 
 # -- inputs -------------------------------------------------------------------------------------
 
-def read_photos(source: pathlib.Path) -> list:
+def read_photos(source: pathlib.Path) -> tuple[list, dict[str, pathlib.Path | None]]:
+    """The photos under `source` and {photo id: its image file} (to name it in errors)."""
     if not source.is_dir():
         raise FileNotFoundError(f"source folder {source} does not exist")
-    photos = cornell.load_photos(source)
+    files = cornell.find_photos(source)
+    object_map = cornell.resolve_object_map(source, "auto")
+    photos = [cornell.read_photo(f, object_map=object_map) for f in files]
     if not photos:
         raise FileNotFoundError(f"no Cornell-format photos (pcdNNNNr.png with cpos.txt) under {source}")
     for photo in photos:
         if len(photo.grasps) == 0:
             raise ValueError(f"photo {photo.id} under {source} has no grasps (its cpos.txt is empty, missing or all NaN)")
-    return photos
+    return photos, {f.id: f.rgb for f in files}
 
 
-def _kosmos_e(path: pathlib.Path, photos) -> dict:
-    annotations = read_annotations(path)
+@dataclasses.dataclass(frozen=True)
+class WordSource:
+    """Where the objects' words come from, its file read once: "kosmos_e" or "synthetic" (`path`,
+    its parsed JSON `document` and the sha256 of the bytes read) or "rules" (pixels, no file)."""
+
+    name: str
+    path: pathlib.Path | None = None
+    document: object = None
+    sha256: str | None = None
+
+
+def word_source(source: pathlib.Path, annotations: str | None) -> WordSource:
+    """The --annotations file (a KOSMOS-E file, or a synthetic_meta.json: it has "photos"), else
+    the source's synthetic_meta.json, else rules; without reading the photos."""
+    if annotations is not None:
+        path = pathlib.Path(annotations)
+        if not path.is_file():
+            raise FileNotFoundError(f"annotation file {path} does not exist")
+    else:
+        path = source / "synthetic_meta.json"
+        if not path.is_file():
+            return WordSource("rules")
+    data = path.read_bytes()
+    try:
+        document = json.loads(data)
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise AnnotationMismatchError(f"annotation file {path} is not JSON: {error}") from error
+    synthetic = annotations is None or (isinstance(document, dict) and "photos" in document)
+    return WordSource("synthetic" if synthetic else "kosmos_e", path, document, hashlib.sha256(data).hexdigest())
+
+
+def _mismatch(path, message: str) -> AnnotationMismatchError:
+    return AnnotationMismatchError(f"annotation file {path} does not match the photos: {message}")
+
+
+def _kosmos_e(path: pathlib.Path, document, photos) -> dict:
+    if not isinstance(document, dict):
+        raise AnnotationMismatchError(f"{path}: expected a JSON object of photo keys, got {type(document).__name__}")
+    annotations = parse_annotations(document, str(path))
     words = {}
     for photo in photos:
         if photo.id not in annotations:
-            raise AnnotationMismatchError(f"annotation file {path} does not match the photos: no entry for photo {photo.id}")
+            raise _mismatch(path, f"no entry for photo {photo.id}")
         words[photo.id] = kosmos_e_words.words_from_photo(annotations.attach(photo))
     return words
 
 
-def _synthetic(path: pathlib.Path, photos) -> dict:
-    words = synthetic_words.read_meta_words(path)
+def _synthetic(path: pathlib.Path, document, photos) -> dict:
+    words = synthetic_words.words_from_document(document, path)
     for photo in photos:
         if photo.id not in words:
-            raise AnnotationMismatchError(f"annotation file {path} does not match the photos: no entry for photo {photo.id}")
+            raise _mismatch(path, f"no entry for photo {photo.id}")
         parts = len(words[photo.id].parts)
         if parts != len(photo.grasps):
-            raise AnnotationMismatchError(
-                f"annotation file {path} does not match the photos: photo {photo.id} has {len(photo.grasps)} grasps "
-                f"but {parts} grasp parts")
+            raise _mismatch(path, f"photo {photo.id} has {len(photo.grasps)} grasps but {parts} grasp parts")
     return words
 
 
-def _rules(source: pathlib.Path, photos) -> dict:
+def _rules(photos, image_files: dict) -> dict:
     """Colour words from pixels: {photo id: ObjectWords}.
 
     A photo whose pixels name no colour gets its colour marked unknown, with the reason (its
     colour kinds are left out); anything else wrong with a photo is an error naming it and its file."""
-    files = {f.id: f.rgb for f in cornell.find_photos(source)}
     words = {}
     for photo in photos:
-        where = f"photo {photo.id} ({files.get(photo.id) or 'no image file'})"
+        where = f"photo {photo.id} ({image_files.get(photo.id) or 'no image file'})"
         try:
             words[photo.id] = rule_words.words_from_pixels(photo.rgb, photo.grasps)
         except rule_words.NoColourError as error:
@@ -173,30 +211,13 @@ def _rules(source: pathlib.Path, photos) -> dict:
     return words
 
 
-def word_source(source: pathlib.Path, annotations: str | None) -> tuple[str, pathlib.Path | None]:
-    """(which words: "kosmos_e", "synthetic" or "rules", the file they come from), without
-    reading the photos."""
-    if annotations is not None:
-        path = pathlib.Path(annotations)
-        if not path.is_file():
-            raise FileNotFoundError(f"annotation file {path} does not exist")
-        try:
-            document = json.loads(path.read_text())
-        except json.JSONDecodeError as error:
-            raise AnnotationMismatchError(f"annotation file {path} is not JSON: {error}") from error
-        return ("synthetic" if isinstance(document, dict) and "photos" in document else "kosmos_e"), path
-    meta = source / "synthetic_meta.json"
-    return ("synthetic", meta) if meta.is_file() else ("rules", None)
-
-
-def object_words(source: pathlib.Path, annotations: str | None, photos) -> tuple[str, dict]:
-    """(word source, {photo id: ObjectWords})."""
-    name, path = word_source(source, annotations)
-    if name == "synthetic":
-        return name, _synthetic(path, photos)
-    if name == "kosmos_e":
-        return name, _kosmos_e(path, photos)
-    return name, _rules(source, photos)
+def object_words(words_from: WordSource, photos, image_files: dict) -> dict:
+    """{photo id: ObjectWords} of every photo."""
+    if words_from.name == "synthetic":
+        return _synthetic(words_from.path, words_from.document, photos)
+    if words_from.name == "kosmos_e":
+        return _kosmos_e(words_from.path, words_from.document, photos)
+    return _rules(photos, image_files)
 
 
 def words_unknown(words: dict) -> dict:
@@ -294,15 +315,29 @@ def check_separation(ids: dict, protocol: str, split: str) -> dict:
 
 # -- identity and reuse -------------------------------------------------------------------------
 
-def build_identity(config: BuildConfig) -> dict:
-    """Everything that decides the dataset's contents, as JSON data: every BuildConfig field but
+def build_settings(config: BuildConfig) -> dict:
+    """The identity but for the inputs' contents, as JSON data: every BuildConfig field but
     `NOT_DATA` (a field added later is in by default), the fold seed resolved, the input files by
-    absolute path and content digest, and the text format as resolved."""
+    absolute path ({"path": ...}), and the text format as resolved."""
     settings = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name not in NOT_DATA}
     settings["fold_seed"] = config.folds_seed()
     for name in INPUT_FILES:
-        settings[name] = identity_lib.input_identity(getattr(config, name))
+        path = getattr(config, name)
+        settings[name] = None if path is None else {"path": str(pathlib.Path(path).resolve())}
     return identity_lib.normalised({"build": settings, "format": dataclasses.asdict(config.format_config())})
+
+
+def build_identity(config: BuildConfig, words_from: WordSource) -> dict:
+    """Everything that decides the dataset's contents: `build_settings` with each input file's
+    content digest ("sha256"; the annotation file's taken when `words_from` read it)."""
+    identity = build_settings(config)
+    inputs = identity["build"]
+    inputs["source"]["sha256"] = identity_lib.content_digest(config.source)
+    if config.annotations is not None:
+        inputs["annotations"]["sha256"] = words_from.sha256
+    if config.tokenizer is not None:
+        inputs["tokenizer"]["sha256"] = identity_lib.content_digest(config.tokenizer)
+    return identity
 
 
 def dataset_config(config: BuildConfig, single, multi, identity: dict) -> tfds_builders.InstructGraspConfig:
@@ -360,8 +395,7 @@ def spot_numbers(count: int, checks: int = SPOT_CHECKS) -> set[int]:
 def check_written(dataset_dir: pathlib.Path, examples: dict[str, int], spots: dict[str, dict[int, bytes]]) -> dict:
     """Re-read a written dataset: each split's example count, its image table, and the images joined
     to the spot-checked examples against the digests of the images they were made from.
-    Returns {split: {"images": distinct images stored, "bytes_on_disk": {...}}}."""
-    usage = tfds_builders.disk_usage(dataset_dir)
+    Returns {split: distinct images stored}."""
     found = {}
     for split, stored in tfds_builders.open_splits(dataset_dir).items():
         if len(stored) != examples[split]:
@@ -374,7 +408,7 @@ def check_written(dataset_dir: pathlib.Path, examples: dict[str, int], spots: di
                 raise BuildCheckError(f"example {number} of split {split!r} ({bytes(record['kind']).decode()}, photos "
                                       f"{[bytes(p).decode() for p in record['photo_ids']]}) joins image "
                                       f"{int(record['image_index'])}, not the image it was made from")
-        found[split] = {"images": len(stored.images), "bytes_on_disk": usage["splits"][split]}
+        found[split] = len(stored.images)
     return found
 
 
@@ -384,30 +418,37 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
 
     tokenize=False stops after the checks and the statistics of pass 1 (no token lengths). When
     writing into a folder that already holds this dataset (same identity), returns its stored
-    statistics with "reused": true instead, unless `config.overwrite`."""
+    statistics with "reused": true instead, unless `config.overwrite`.
+
+    The statistics' "identity" is `build_identity` when writing; a plan-only build hashes no input
+    (that is needed only to name and reuse a written dataset), so its "identity" is
+    `build_settings`: the input files by path, without "sha256". Either way "word_source",
+    "kinds" (as resolved) and "photos" (how many were read) sit beside it."""
     source = pathlib.Path(config.source)
     if config.protocol not in ("honest", "paper"):
         raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
     if not source.is_dir():
         raise FileNotFoundError(f"source folder {source} does not exist")
     format_config = config.format_config()
-    word_source_name, _ = word_source(source, config.annotations)
-    kinds = config.kinds if config.kinds is not None else (("all",) if word_source_name != "rules" else RULE_KINDS)
+    words_from = word_source(source, config.annotations)
+    kinds = config.kinds if config.kinds is not None else (("all",) if words_from.name != "rules" else RULE_KINDS)
     single, multi = sample_stage.parse_kinds(kinds)
-    identity = build_identity(config)
     if write:
         if config.out is None:
             raise ValueError("--out is required to write the dataset")
         if not tokenize:
             raise ValueError("writing a dataset needs its tokens (tokenize=True)")
+        identity = build_identity(config, words_from)
         out = pathlib.Path(config.out)
         written_config = dataset_config(config, single, multi, identity)
         dataset_dir = tfds_builders.dataset_folder(out, written_config)
         if dataset_dir.exists() and not config.overwrite:
             return reused_stats(dataset_dir, identity)
+    else:
+        identity = build_settings(config)
 
-    photos = read_photos(source)
-    word_source_name, words = object_words(source, config.annotations, photos)
+    photos, image_files = read_photos(source)
+    words = object_words(words_from, photos, image_files)
     views, view_counts = split_views(config, photos, words)
 
     # pass 1: samples, checks, statistics, the tokenizer's corpus
@@ -453,9 +494,10 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             "object_ids": sorted(int(o) for o in object_ids),
         }
     stats["separation"] = check_separation(ids, config.protocol, config.split)
-    stats["config"] = {**dataclasses.asdict(config), "fold_seed": config.folds_seed(), "word_source": word_source_name,
-                       "single_kinds": list(single), "multi_kinds": list(multi), "photos": len(photos)}
     stats["identity"] = identity
+    stats["word_source"] = words_from.name
+    stats["kinds"] = {"single": list(single), "multi": list(multi)}
+    stats["photos"] = len(photos)
     stats["photos_without_words"] = words_unknown(words)
     if not corpus:
         raise ValueError("the training split has no examples; nothing to train a tokenizer on or to write")
@@ -499,14 +541,15 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     def finish(staged: pathlib.Path):
         """Runs on the complete staged folder, before it is published under its final name."""
         token_stats()
-        examples = {split: stats["splits"][split]["examples"] for split in ("train", "test")}
-        for split, found in check_written(staged, examples, spots).items():
-            stats["splits"][split].update(found)
         tokenizer.save(staged / "tokenizer.model")
+        examples = {split: stats["splits"][split]["examples"] for split in ("train", "test")}
+        usage = tfds_builders.disk_usage(staged)
+        for split, images in check_written(staged, examples, spots).items():
+            stats["splits"][split].update(images=images, bytes_on_disk=usage["splits"][split])
         stats["tokenizer"]["path"] = str(dataset_dir / "tokenizer.model")
         stats["dataset_dir"] = str(dataset_dir)
         stats["dataset_name"] = written_config.name
-        stats["bytes_on_disk"] = tfds_builders.disk_usage(staged)["total"]  # all but this statistics file
+        stats["bytes_on_disk"] = usage["total"]  # all but this statistics file
         stats["reused"] = False
         (staged / STATS_FILE).write_text(json.dumps(stats, indent=1))
 

@@ -49,11 +49,3 @@ def content_digest(path) -> str:
         digest.update(f"{file.relative_to(path).as_posix()}\0{file.stat().st_size}\0".encode())
         _file_sha256(file, digest)
     return digest.hexdigest()
-
-
-def input_identity(path) -> dict | None:
-    """{"path": absolute path, "sha256": content digest} of an input file or folder; None for None."""
-    if path is None:
-        return None
-    path = pathlib.Path(path)
-    return {"path": str(path.resolve()), "sha256": content_digest(path)}
