@@ -2,6 +2,8 @@
 
 import os
 import pathlib
+import subprocess
+import sys
 
 # Sharding tests need several devices; on CPU XLA can pretend. Must precede the first jax import.
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=8")
@@ -33,3 +35,10 @@ def kosmos_e_annotations() -> pathlib.Path:
 @pytest.fixture
 def jacquard_root() -> pathlib.Path:
     return shared_path("jacquard")
+
+
+@pytest.fixture
+def dead_pid() -> int:
+    """The pid of a process that has already exited (for staging folders of killed writers)."""
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(finished.stdout)

@@ -4,6 +4,7 @@ dataset identity (reuse, overwrite, interrupted builds) and the image tables it 
 import hashlib
 import json
 import math
+import os
 import pathlib
 import re
 import shutil
@@ -473,7 +474,7 @@ def test_a_folder_of_this_name_with_other_contents_is_refused(source, tmp_path):
     assert build(build_module.dataclasses.replace(config, overwrite=True))["reused"] is False
 
 
-def test_an_interrupted_build_is_never_taken_as_complete(source, tmp_path, monkeypatch):
+def test_an_interrupted_build_is_never_taken_as_complete(source, tmp_path, monkeypatch, dead_pid):
     config = _quick(source, tmp_path / "out")
     encode = build_module.layout.encode_example
     calls = {"n": 0}
@@ -499,9 +500,14 @@ def test_an_interrupted_build_is_never_taken_as_complete(source, tmp_path, monke
         patch.setattr(publish.shutil, "rmtree", lambda *args, **kwargs: None)
         with pytest.raises(KeyboardInterrupt):
             build(config)
-    assert len(list((tmp_path / "out").glob(".staging-*"))) == 1
+    (leftover,) = (tmp_path / "out").glob(".staging-*")
     rerun = build(config)
-    assert rerun["reused"] is False  # built afresh, the leftover ignored
+    assert rerun["reused"] is False  # built afresh
+    assert leftover.exists()  # a live writer's staging folder (this process's) is left alone
+    prefix = leftover.name[: leftover.name.rindex(f"-{os.getpid()}-") + 1]  # ".staging-<dest>-<host>-"
+    leftover.rename(leftover.with_name(f"{prefix}{dead_pid}-0a1b2c3d"))  # as if its writer had been killed
+    assert build(build_module.dataclasses.replace(config, overwrite=True))["reused"] is False
+    assert not list((tmp_path / "out").glob(".staging-*"))  # the next writer cleared the dead one's leftover
     assert rerun["splits"]["train"]["examples"] > 40  # so the crashes above were in the middle of it
     train = open_splits(rerun["dataset_dir"])["train"]
     assert len(train) == rerun["splits"]["train"]["examples"]

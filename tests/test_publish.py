@@ -4,8 +4,6 @@ and come back when the swap fails, killed writers' staging folders are cleared."
 import os
 import pathlib
 import socket
-import subprocess
-import sys
 
 import pytest
 
@@ -20,11 +18,6 @@ def write(folder: pathlib.Path, files: dict) -> None:
     for name, text in files.items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         (folder / name).write_text(text)
-
-
-def dead_pid() -> int:
-    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    return int(finished.stdout)
 
 
 def test_a_folder_is_published_whole_and_its_staging_folder_goes(tmp_path):
@@ -87,12 +80,12 @@ def test_a_failed_final_rename_puts_the_old_folder_back(tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
-def test_killed_writers_staging_folders_are_removed_by_the_next_writer(tmp_path):
+def test_killed_writers_staging_folders_are_removed_by_the_next_writer(tmp_path, dead_pid):
     prefix = publish.staging_prefix("out")
     assert prefix == f".staging-out-{socket.gethostname()}-"
-    dead, live = tmp_path / f"{prefix}{dead_pid()}-0a1b2c3d", tmp_path / f"{prefix}{os.getpid()}-4e5f6a7b"
-    other = tmp_path / f"{publish.staging_prefix('other')}{dead_pid()}-0a1b2c3d"  # another destination's
-    elsewhere = tmp_path / f".staging-out-other-machine-{dead_pid()}-0a1b2c3d"  # another host's
+    dead, live = tmp_path / f"{prefix}{dead_pid}-0a1b2c3d", tmp_path / f"{prefix}{os.getpid()}-4e5f6a7b"
+    other = tmp_path / f"{publish.staging_prefix('other')}{dead_pid}-0a1b2c3d"  # another destination's
+    elsewhere = tmp_path / f".staging-out-other-machine-{dead_pid}-0a1b2c3d"  # another host's
     for folder in (dead, live, other, elsewhere):
         write(folder / "out", {"a.txt": "half"})
     with publish.staged(tmp_path, "out") as root:
