@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import grasp_text
-from kosmos_jax.models import decode, weights
+from kosmos_jax.models import decode, grammar_budget, weights
 from kosmos_jax.models.grammar import TokenConstraint, answer_template
 from kosmos_jax.text import formatter
 
@@ -296,6 +296,17 @@ def test_a_vocabulary_that_cannot_spell_an_answer_is_refused():
         TokenConstraint(vocab, EOS, "xya")
     with pytest.raises(ValueError, match="whole xya angle answer"):  # the angle part alone as well
         TokenConstraint(vocab, EOS, "xya", part="angle")
+
+
+def test_step_tables_are_int16_when_they_fit_and_int32_otherwise():
+    for states in (100, 40_000):  # 40000 states do not fit int16
+        base = np.arange(states, dtype=np.int32)
+        tables = grammar_budget.Tables(base, np.zeros(states, np.int32), (), (), (), ())
+        trans = np.array([[0, states - 1], [1, 2]], np.int32)
+        field, value = np.array([[-1, 0], [1, -1]], np.int32), np.array([[-1, 5], [7, -1]], np.int32)
+        table = grammar_budget.step_tables(tables, trans, field, value).table
+        assert table.dtype == (np.int16 if states < 2 ** 15 else np.int32)
+        np.testing.assert_array_equal(table, np.stack([trans, field, value, base[trans]], axis=-1))
 
 
 def test_constrained_generation_with_the_model_parses():

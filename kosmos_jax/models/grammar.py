@@ -290,7 +290,6 @@ class TokenConstraint:
         tokens = [(text, i) for i, text in enumerate(token_texts) if i != eos_id and END not in text]
         ids, trans, store_field, store_value = machine.run_tokens([*tokens, (END, eos_id)], max(stored, default=-1))
         self.token_ids = np.asarray(ids, np.int32)  # [R]
-        self.trans, self.store_field, self.store_value = trans, store_field, store_value  # [S, R]; trans 0 = dead
         self.column_of_token = np.full(self.vocab_size, -1, np.int32)
         self.column_of_token[self.token_ids] = np.arange(ids.size)
 
@@ -298,7 +297,7 @@ class TokenConstraint:
         neutral = np.ones(n_states, bool)
         neutral[list(machine.inside_value)] = False
         final = np.arange(n_states) == machine.final
-        automaton = budget.Automaton(self.trans, self.store_field, self.store_value, final, phase, order,
+        automaton = budget.Automaton(trans, store_field, store_value, final, phase, order,
                                      neutral, tuple(len(f.spellings) for f in machine.fields))
         pairs = tuple(
             budget.Relation(index[r.lower], index[r.upper], relation_holds(
@@ -306,6 +305,7 @@ class TokenConstraint:
                 image_size))
             for r in kept)
         self.tables = budget.tables(automaton, pairs)
+        self.steps = budget.step_tables(self.tables, trans, store_field, store_value)
         self.min_tokens = self.tables.min_tokens
         if self.min_tokens >= budget.INF:
             raise ValueError(f"no sequence of the vocabulary's tokens spells a whole {representation} {part} answer "
@@ -336,10 +336,9 @@ class TokenConstraint:
         if vocab_size != self.vocab_size:
             raise ValueError(f"constraint built for {self.vocab_size} tokens, model has {vocab_size}")
         s, reg = cstate["state"], cstate["reg"]
-        nxt = jnp.asarray(self.trans)[s]  # [B, R]
-        field, value = jnp.asarray(self.store_field)[s], jnp.asarray(self.store_value)[s]
-        needed = budget.tokens_needed(self.tables, nxt, field, value, reg)
-        ok = (nxt > 0) & (needed <= remaining - 1) & budget.completion_allowed(self.tables, field, value, reg)
+        row = jnp.asarray(self.steps.table)[s].astype(jnp.int32)  # [B, R, C]
+        needed = budget.tokens_needed(self.steps, row, reg)
+        ok = (row[..., budget.NEXT] > 0) & (needed <= remaining - 1) & budget.completion_allowed(self.steps, row, reg)
         mask = jnp.zeros((s.shape[0], vocab_size), bool).at[:, jnp.asarray(self.token_ids)].set(ok)
         # a row with no choice only arises when called with fewer tokens left than the answer needs
         return mask.at[:, self.eos_id].set(mask[:, self.eos_id] | ~jnp.any(mask, axis=1))
@@ -348,11 +347,10 @@ class TokenConstraint:
         s, reg = cstate["state"], cstate["reg"]
         column = jnp.asarray(self.column_of_token)[tokens]
         known = column >= 0
-        column = jnp.maximum(column, 0)
-        field = jnp.asarray(self.store_field)[s, column]
-        value = jnp.asarray(self.store_value)[s, column]
+        entry = jnp.asarray(self.steps.table)[s, jnp.maximum(column, 0)].astype(jnp.int32)  # [B, C]
+        field, value = entry[:, budget.FIELD], entry[:, budget.VALUE]
         write = known[:, None] & (jnp.arange(reg.shape[1])[None] == field[:, None])
-        return {"state": jnp.where(known, jnp.asarray(self.trans)[s, column], s), "reg": jnp.where(write, value[:, None], reg)}
+        return {"state": jnp.where(known, entry[:, budget.NEXT], s), "reg": jnp.where(write, value[:, None], reg)}
 
     def finished(self, cstate):
         return jnp.zeros(cstate["state"].shape, bool)

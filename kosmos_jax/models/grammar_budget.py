@@ -24,6 +24,9 @@ is carried by that relation's remainder.
 Decoding may take any token; it keeps those after which such an answer still fits the budget.
 These costs are exact for XYA, XYWHA and TLBRA-patch; for TLBRA they are an upper bound (an answer
 ending x2 or y1 elsewhere may be shorter). Either way a kept token never leads into a dead end.
+
+All of a step's lookups depend only on (state, token column), so `step_tables` composes the tables
+above with the token transitions once: a decoding step gathers one row by state, then compares.
 """
 
 from __future__ import annotations
@@ -165,27 +168,59 @@ def tables(a: Automaton, relations: tuple[Relation, ...]) -> Tables:
                   tuple(clip(t) for t in upper_cost), tuple(clip(r) for r in remainder))
 
 
-def tokens_needed(t: Tables, nxt, field, value, reg):
+# -- the decoding step ----------------------------------------------------------------------
+NEXT, FIELD, VALUE, COST = range(4)  # channels of StepTables.table; then one term row per relation
+
+
+@dataclasses.dataclass(frozen=True)
+class StepTables:
+    """Everything a decoding step reads, per (state, token column): one gather by state gives it.
+
+    table [S, R, 4 + relations] (int16 when everything fits): the NEXT state (0 = dead), the FIELD
+    the token completes (-1 none) and its VALUE, the COST from the next state without relation
+    terms (Tables.base; INF when dead), then per relation k the row of terms[k] that prices the
+    next state: an upper_cost row inside k's upper phase, the remainder row while k's upper field
+    is ahead, else a row of zeros."""
+
+    table: np.ndarray
+    terms: tuple[np.ndarray, ...]  # per relation: [rows + 2, D_lower] int32
+    relations: tuple[Relation, ...]
+
+
+def step_tables(t: Tables, trans: np.ndarray, field: np.ndarray, value: np.ndarray) -> StepTables:
+    """Compose the per-state tables with the token transitions trans/field/value [S, R]."""
+    phase = t.phase[trans]
+    channels, terms = [trans, field, value, t.base[trans]], []
+    for k, rel in enumerate(t.relations):
+        rows = len(t.upper_cost[k])
+        remainder_row, zero_row = rows, rows + 1
+        inside = t.upper_row[k][trans]
+        ahead = (rel.lower < phase) & (phase < rel.upper)
+        channels.append(np.where(inside >= 0, inside, np.where(ahead, remainder_row, zero_row)))
+        terms.append(np.concatenate([t.upper_cost[k], t.remainder[k][None], np.zeros_like(t.remainder[k])[None]]))
+    table = np.stack(channels, axis=-1)
+    narrow = np.iinfo(np.int16)
+    dtype = np.int16 if narrow.min <= table.min() and table.max() <= narrow.max else np.int32
+    return StepTables(table.astype(dtype), tuple(terms), t.relations)
+
+
+def tokens_needed(st: StepTables, row, reg):
     """Fewest tokens (EOS included) to finish after each candidate token, inside jit.
 
-    nxt, field, value: [B, R] the state each token leads to, the field it completes (-1) and the
-    value; reg: [B, F] the registers before it. Returns [B, R] int32 (>= INF: cannot finish)."""
-    phase = jnp.asarray(t.phase)[nxt]
-    cost = jnp.asarray(t.base)[nxt]
-    for rel, row_of, table, rest in zip(t.relations, t.upper_row, t.upper_cost, t.remainder):
-        lower = jnp.where(field == rel.lower, value, reg[:, rel.lower][:, None])
-        ahead = (rel.lower < phase) & (phase < rel.upper)
-        cost += jnp.where(ahead, jnp.asarray(rest)[lower], 0)
-        inside = phase == rel.upper
-        row = jnp.maximum(jnp.asarray(row_of)[nxt], 0)
-        cost += jnp.where(inside, jnp.asarray(table)[row, lower], 0)
+    row: [B, R, C] int32, StepTables.table at each row's state; reg: [B, F] the registers before
+    the token. Returns [B, R] int32 (>= INF: cannot finish)."""
+    cost = row[..., COST]
+    for k, (rel, terms) in enumerate(zip(st.relations, st.terms)):
+        lower = jnp.where(row[..., FIELD] == rel.lower, row[..., VALUE], reg[:, rel.lower][:, None])
+        cost += jnp.asarray(terms)[row[..., COST + 1 + k], lower]
     return cost
 
 
-def completion_allowed(t: Tables, field, value, reg):
+def completion_allowed(st: StepTables, row, reg):
     """[B, R] bool: a token completing a relation's upper field keeps to the relation."""
+    field, value = row[..., FIELD], row[..., VALUE]
     ok = jnp.ones(field.shape, bool)
-    for rel in t.relations:
+    for rel in st.relations:
         lower = reg[:, rel.lower][:, None]
         ok &= jnp.where(field == rel.upper, jnp.asarray(rel.holds)[lower, jnp.maximum(value, 0)], True)
     return ok
