@@ -11,7 +11,7 @@ import pytest
 
 from kosmos_jax import grasp_text
 from kosmos_jax.models import decode, weights
-from kosmos_jax.models.grammar import TokenConstraint
+from kosmos_jax.models.grammar import TokenConstraint, cue_constraints
 from kosmos_jax.text import formatter
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import train_tokenizer
@@ -121,8 +121,7 @@ def test_every_value_decoded_after_its_cue_parses(tokenizers, model, numbers, re
     constraint makes, after the cue, a target text formatter.parse_target accepts."""
     tokenizer = tokenizers[numbers]
     config = formatter.FormatConfig(representation, angle_code, individual=True, image_size=SIZE)
-    prompt = {p.part: p for p in decode.cue_constraints(vocabulary_texts(tokenizer, model), tokenizer.eos_id,
-                                                        config)}[part]
+    prompt = {p.part: p for p in cue_constraints(vocabulary_texts(tokenizer, model), tokenizer.eos_id, config)}[part]
     texts = []
     for row in constrained_rows(tokenizer, model, prompt.constraint, prompt.cue, seeds=2):
         text = prompt.target_text(row)

@@ -8,7 +8,6 @@ import pytest
 
 from kosmos_jax.models import decode, weights
 from kosmos_jax.models.kosmos2 import forward
-from kosmos_jax.text import formatter
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 NEW = 4
@@ -107,25 +106,3 @@ def test_rows_stop_at_eos_and_then_emit_padding(setup):
 
     tokens = np.asarray(decode.generate(model, *args, max_new_tokens=3, constraint=ForceEos()))
     assert (tokens[:, 0] == cfg.eos_token_id).all() and (tokens[:, 1:] == cfg.pad_token_id).all()
-
-
-def test_cue_constraints_follow_the_format_config():
-    vocab = ["<s>", "<pad>", "</s>", "<unk>", *sorted(set("Grasp center point coordinates: x_,y_ rotation angle in "
-                                                          "radians: a_ bounding box -.0123456789<>"))]
-    spell = lambda text: [vocab.index(ch) for ch in text] + [2, 1]  # noqa: E731  EOS, then padding
-
-    individual = formatter.FormatConfig("tlbra", angle_code=False)
-    prompts = decode.cue_constraints(vocab, 2, individual)
-    assert [(p.part, p.cue) for p in prompts] == formatter.prompt_cues(individual)
-    assert [p.constraint.part for p in prompts] == ["location", "angle"]
-    assert all(not p.constraint.angle_code and p.constraint.representation == "tlbra" for p in prompts)
-    location, angle = prompts
-    assert location.target_text(spell(" x_-3,y_4,x_9,y_8")) == "Grasp bounding box: x_-3,y_4,x_9,y_8"
-    assert angle.target_text(spell("a_-0.52")) == "Grasp rotation angle in radians: a_-0.52"
-
-    centre = decode.cue_constraints(vocab, 2, individual, answer="centre")
-    assert [p.part for p in centre] == ["location"]
-    joint = decode.cue_constraints(vocab, 2, formatter.FormatConfig("xya", individual=False))
-    assert [(p.part, p.cue, p.constraint.part) for p in joint] == [("grasp", "", "grasp")]
-    answer = "Grasp center point coordinates: x_1,y_2 Grasp rotation angle in radians: a_3"
-    assert joint[0].target_text(spell(" " + answer)) == answer

@@ -11,7 +11,7 @@ import pytest
 
 from kosmos_jax import grasp_text
 from kosmos_jax.models import decode, grammar_budget, weights
-from kosmos_jax.models.grammar import TokenConstraint, answer_template
+from kosmos_jax.models.grammar import TokenConstraint, answer_template, cue_constraints
 from kosmos_jax.text import formatter
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
@@ -136,7 +136,7 @@ def test_every_formatted_value_is_admitted_char_by_char_and_parses(representatio
     examples = [next((cue, value) for p, cue, value, _ in formatter.grasp_parts(g, "grasp", config) if p == part)
                 for g in grasps]
     for cue, value in examples:
-        text = f"{cue} {value}" if cue else value
+        text = formatter.target_text(cue, value)
         parsed = formatter.parse_target(text, part, config)
         assert parsed.ok, (text, parsed.error)
     values = [value for _, value in examples]
@@ -172,11 +172,11 @@ def test_a_part_admits_its_value_only():
 
 
 def test_an_unknown_part_is_refused():
-    with pytest.raises(ValueError, match=r"unknown answer part 'centre'; expected one of \('grasp', 'location'"):
+    with pytest.raises(ValueError, match=r"unknown part 'centre'; expected one of \('grasp', 'location'"):
         TokenConstraint(character_vocabulary(), EOS, "xya", part="centre")
-    with pytest.raises(ValueError, match="unknown answer part 'value'"):
+    with pytest.raises(ValueError, match="unknown part 'value'"):
         TokenConstraint.for_part(character_vocabulary(), EOS, formatter.FormatConfig(), "value")
-    with pytest.raises(ValueError, match="unknown answer part"):
+    with pytest.raises(ValueError, match="unknown part 'Location'"):
         answer_template("xya", "Location")
 
 
@@ -208,6 +208,30 @@ def _allowed_after(constraint, ids):
 
     cstate, _ = jax.lax.scan(body, constraint.init(ids.shape[0]), ids.T)
     return constraint.allowed(cstate, constraint.vocab_size, 100)
+
+
+def test_cue_constraints_follow_the_format_config():
+    vocab = ["<s>", "<pad>", "</s>", "<unk>", *sorted(set("Grasp center point coordinates: x_,y_ rotation angle in "
+                                                          "radians: a_ bounding box -.0123456789<>"))]
+    spell = lambda text: [vocab.index(ch) for ch in text] + [2, 1]  # noqa: E731  EOS, then padding
+
+    individual = formatter.FormatConfig("tlbra", angle_code=False)
+    prompts = cue_constraints(vocab, 2, individual)
+    assert [(p.part, p.cue) for p in prompts] == [("location", "Grasp bounding box:"),
+                                                  ("angle", "Grasp rotation angle in radians:")]
+    assert [p.constraint.part for p in prompts] == ["location", "angle"]
+    assert all(not p.constraint.angle_code and p.constraint.representation == "tlbra" for p in prompts)
+    location, angle = prompts
+    assert location.target_text(spell(" x_-3,y_4,x_9,y_8")) == "Grasp bounding box: x_-3,y_4,x_9,y_8"
+    assert angle.target_text(spell("a_-0.52")) == "Grasp rotation angle in radians: a_-0.52"
+
+    centre = cue_constraints(vocab, 2, formatter.FormatConfig("xya"), answer="centre")
+    assert [(p.part, p.cue, p.constraint.part) for p in centre] == [
+        ("location", "Grasp center point coordinates:", "location")]
+    joint = cue_constraints(vocab, 2, formatter.FormatConfig("xya", individual=False))
+    assert [(p.part, p.cue, p.constraint.part) for p in joint] == [("grasp", "", "grasp")]
+    answer = "Grasp center point coordinates: x_1,y_2 Grasp rotation angle in radians: a_3"
+    assert joint[0].target_text(spell(" " + answer)) == answer
 
 
 def test_order_relations_are_enforced(toy_constraints):
@@ -256,7 +280,7 @@ def test_random_logits_give_parsable_location_values(toy_part_constraints, repre
     for budget in (3 * constraint.min_tokens, constraint.min_tokens):
         for row in np.asarray(constrained_walk(constraint, logits, budget)):
             value = detokenize(row[:budget], vocab).removeprefix(" ")
-            parsed = formatter.parse_target(f"{cue} {value}", "location", config)
+            parsed = formatter.parse_target(formatter.target_text(cue, value), "location", config)
             assert parsed.ok, (value, parsed.error)
             values.add(value)
     assert len(values) > 10

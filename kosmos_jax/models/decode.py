@@ -5,27 +5,24 @@ real token of every row is at position 2 and each real token adds one, so a left
 exactly as it would alone. (transformers' `generate` instead adds the padding length to the
 positions of generated tokens; see tests/test_model_decode.py.)
 
-A `constraint` (kosmos_jax.models.grammar.TokenConstraint) restricts every step to the tokens its
-automaton allows, told how many tokens the row may still emit (this one included) so that it can
-keep only tokens after which an answer still fits. After its EOS a row emits the pad id, and those
-pad tokens are padding in both paths: never attended to, at the padding position.
-`cue_constraints` gives the constraint for each prompt a FormatConfig's examples end with (in
-individual mode, each part's cue).
+A `constraint` (the interface of NoConstraint; kosmos_jax.models.grammar.TokenConstraint for grasp
+answers) restricts every step to the tokens it allows, told how many tokens the row may still emit
+(this one included) so that it can keep only tokens after which an answer still fits. After its
+EOS a row emits the pad id, and those pad tokens are padding in both paths: never attended to, at
+the padding position.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.decoder import init_cache, position_ids
-from kosmos_jax.models.grammar import TokenConstraint
 from kosmos_jax.models.kosmos2 import Kosmos2
-from kosmos_jax.text import formatter
 
 
 class NoConstraint:
@@ -45,25 +42,6 @@ class NoConstraint:
 
     def finished(self, state) -> jax.Array:
         return jnp.zeros(state.shape, bool)
-
-
-class CuePrompt(NamedTuple):
-    part: str  # "grasp", "location" or "angle"
-    cue: str  # what the prompt ends with after the instruction ("" in joint mode)
-    constraint: TokenConstraint  # admits exactly the part's value after the cue
-
-    def target_text(self, ids) -> str:
-        """The target text of generated ids (cue and value), as formatter.parse_target takes it."""
-        value = self.constraint.answer(ids)
-        return f"{self.cue} {value}" if self.cue else value
-
-
-def cue_constraints(token_texts: Sequence[str], eos_id: int, config: formatter.FormatConfig,
-                    answer: str = "grasp", **kwargs) -> list[CuePrompt]:
-    """One CuePrompt per prompt `formatter.prompt_cues` lists for `config` and `answer` (the
-    instruction's answer kind, "grasp" or "centre")."""
-    return [CuePrompt(part, cue, TokenConstraint.for_part(token_texts, eos_id, config, part, **kwargs))
-            for part, cue in formatter.prompt_cues(config, answer)]
 
 
 def _pick(logits, constraint, cstate, done, remaining, eos_id, pad_id):

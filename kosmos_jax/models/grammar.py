@@ -9,7 +9,8 @@ marker after the template, so that it completes the last field like any literal 
 
 An answer is a `part` of formatter's examples: "grasp", the whole answer of joint mode, or in
 individual mode the value after a prompt's cue ("location": "x_12,y_3", "angle": "a_77"; the cue
-itself ends the prompt). Each part's value template is formatter.split_cue of the grasp text.
+itself ends the prompt). Each part's value template is grasp_text.split_cue of the grasp text.
+`cue_constraints` gives the constraint for each prompt a FormatConfig's examples end with.
 
 Orderings the parser demands but a small automaton cannot hold (TLBRA: x1 <= x2 with the box's
 middle inside the image; TLBRA-patch: the lower-right patch not left of or above the upper-left
@@ -19,8 +20,8 @@ kosmos_jax.models.grammar_budget take it into account.
 At every step a token is allowed only if a complete answer (EOS included) still fits in the tokens
 left after it, so no state without a way out is ever entered and every answer ends in time: every
 answer parses. Tokenizer-agnostic: give the text of every token id (`Tokenizer.piece_texts` for
-this project's SentencePiece tokenizers) and the EOS id. A token that completes two fields is not used
-up to the last field of an order relation (a register holds one value per token).
+this project's SentencePiece tokenizers) and the EOS id. A token that completes two fields is not
+used up to the last field of an order relation (a register holds one value per token).
 
 SentencePiece spells the first token of a segment with a leading "▁" (layout.py encodes the
 instruction, the cue and the value each on their own), so the answer may start with one space
@@ -33,6 +34,7 @@ import dataclasses
 import math
 import re
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -59,17 +61,11 @@ class Relation:
     kind: str  # "box": lower <= upper, their mean inside the image; "patch": upper's row and column >= lower's
 
 
-def check_part(part: str) -> str:
-    if part not in formatter.PARTS:
-        raise ValueError(f"unknown answer part {part!r}; expected one of {formatter.PARTS}")
-    return part
-
-
 def answer_template(representation: str, part: str = "grasp") -> str:
     """The text a `part` answer writes, fields in braces: the whole grasp, or the value after the
     location's or the angle's cue ("x_{x},y_{y}", "a_{a}")."""
     grasp_text.check_representation(representation)
-    check_part(part)
+    formatter.check_part(part)
     location = {
         "xya": grasp_text.CENTRE_TEXT,
         "xywha": grasp_text.CENTRE_TEXT + " " + grasp_text.SIZE_TEXT,
@@ -78,7 +74,7 @@ def answer_template(representation: str, part: str = "grasp") -> str:
     }[representation]
     if part == "grasp":
         return location + " " + grasp_text.ANGLE_TEXT
-    return formatter.split_cue(location if part == "location" else grasp_text.ANGLE_TEXT)[1]
+    return grasp_text.split_cue(location if part == "location" else grasp_text.ANGLE_TEXT)[1]
 
 
 def _ints(name, lo, hi, width=0):
@@ -277,7 +273,7 @@ class TokenConstraint:
     def __init__(self, token_texts: Sequence[str], eos_id: int, representation: str = "xya", *,
                  angle_code: bool = True, image_size: int = 224, optional_prefix: str = " ", part: str = "grasp"):
         self.representation, self.angle_code, self.image_size = representation, angle_code, image_size
-        self.part = check_part(part)
+        self.part = formatter.check_part(part)
         self.eos_id, self.vocab_size = eos_id, len(token_texts)
         self.token_texts, self.optional_prefix = tuple(token_texts), optional_prefix
         fields = field_domains(representation, angle_code, image_size)
@@ -355,3 +351,20 @@ class TokenConstraint:
     def finished(self, cstate):
         return jnp.zeros(cstate["state"].shape, bool)
 
+
+class CuePrompt(NamedTuple):
+    part: str  # "grasp", "location" or "angle"
+    cue: str  # what the prompt ends with after the instruction ("" in joint mode)
+    constraint: TokenConstraint  # admits exactly the part's value after the cue
+
+    def target_text(self, ids) -> str:
+        """The target text of generated ids (cue and value), as formatter.parse_target takes it."""
+        return formatter.target_text(self.cue, self.constraint.answer(ids))
+
+
+def cue_constraints(token_texts: Sequence[str], eos_id: int, config: formatter.FormatConfig,
+                    answer: str = "grasp", **kwargs) -> list[CuePrompt]:
+    """One CuePrompt per prompt `formatter.prompt_cues` lists for `config` and `answer` (the
+    instruction's answer kind, "grasp" or "centre")."""
+    return [CuePrompt(part, cue, TokenConstraint.for_part(token_texts, eos_id, config, part, **kwargs))
+            for part, cue in formatter.prompt_cues(config, answer)]
