@@ -234,6 +234,18 @@ def test_cue_constraints_follow_the_format_config():
     assert joint[0].target_text(spell(" " + answer)) == answer
 
 
+def test_a_centre_answer_in_joint_mode_writes_its_cue():
+    """Joint mode puts no cue in the prompt, so a centre answer is the whole location text."""
+    vocab = character_vocabulary()
+    config = formatter.FormatConfig("xya", individual=False)
+    (prompt,) = cue_constraints(vocab, EOS, config, answer="centre")
+    assert (prompt.part, prompt.cue) == ("location", "")
+    admitted = lambda text: bool(np.asarray(admission(prompt.constraint, spelled([text], vocab, 48))).all())  # noqa: E731
+    answer = "Grasp center point coordinates: x_1,y_2"
+    assert admitted(" " + answer) and not admitted(" x_1,y_2")
+    assert formatter.parse_target(prompt.target_text(spelled([" " + answer], vocab)[0]), "location", config).ok
+
+
 def test_order_relations_are_enforced(toy_constraints):
     vocab, constraints = toy_constraints
     box = constraints["tlbra", True]

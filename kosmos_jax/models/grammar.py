@@ -9,7 +9,9 @@ marker after the template, so that it completes the last field like any literal 
 
 An answer is a `part` of formatter's examples: "grasp", the whole answer of joint mode, or in
 individual mode the value after a prompt's cue ("location": "x_12,y_3", "angle": "a_77"; the cue
-itself ends the prompt). Each part's value template is grasp_text.split_cue of the grasp text.
+itself ends the prompt). Each part's value template is grasp_text.split_cue of the grasp text. A
+location in joint mode (an instruction asking for the centre only) has no cue in the prompt: the
+answer writes it (`after_cue=False`).
 `cue_constraints` gives the constraint for each prompt a FormatConfig's examples end with.
 
 Orderings the parser demands but a small automaton cannot hold (TLBRA: x1 <= x2 with the box's
@@ -61,9 +63,9 @@ class Relation:
     kind: str  # "box": lower <= upper, their mean inside the image; "patch": upper's row and column >= lower's
 
 
-def answer_template(representation: str, part: str = "grasp") -> str:
-    """The text a `part` answer writes, fields in braces: the whole grasp, or the value after the
-    location's or the angle's cue ("x_{x},y_{y}", "a_{a}")."""
+def answer_template(representation: str, part: str = "grasp", after_cue: bool = True) -> str:
+    """The text a `part` answer writes, fields in braces: the whole grasp, or the location's or the
+    angle's text, only the value after its cue ("x_{x},y_{y}", "a_{a}") when `after_cue`."""
     grasp_text.check_representation(representation)
     formatter.check_part(part)
     location = {
@@ -74,7 +76,8 @@ def answer_template(representation: str, part: str = "grasp") -> str:
     }[representation]
     if part == "grasp":
         return location + " " + grasp_text.ANGLE_TEXT
-    return grasp_text.split_cue(location if part == "location" else grasp_text.ANGLE_TEXT)[1]
+    text = location if part == "location" else grasp_text.ANGLE_TEXT
+    return grasp_text.split_cue(text)[1] if after_cue else text
 
 
 def _ints(name, lo, hi, width=0):
@@ -263,21 +266,23 @@ class _CharMachine:
 class TokenConstraint:
     """The answer grammar over token ids, usable inside jit (see decode.generate's `constraint`).
 
-    `part`: "grasp" (the whole answer), "location" or "angle" (the value after that part's cue;
-    `for_part` takes the settings from a FormatConfig). State per row: {"state": automaton state,
-    "reg": spelling index of the completed fields}. A token, EOS included, is allowed if the answer
-    can still be completed within the tokens left after it. `min_tokens`: the fewest tokens of a
+    `part`: "grasp" (the whole answer), "location" or "angle" (the value after that part's cue, or
+    the part's whole text if not `after_cue`; `for_part` takes the settings from a FormatConfig).
+    State per row: {"state": automaton state, "reg": spelling index of the completed fields}. A
+    token, EOS included, is allowed if the answer can still be completed within the tokens left
+    after it. `min_tokens`: the fewest tokens of a
     whole answer, EOS included.
     """
 
     def __init__(self, token_texts: Sequence[str], eos_id: int, representation: str = "xya", *,
-                 angle_code: bool = True, image_size: int = 224, optional_prefix: str = " ", part: str = "grasp"):
+                 angle_code: bool = True, image_size: int = 224, optional_prefix: str = " ", part: str = "grasp",
+                 after_cue: bool = True):
         self.representation, self.angle_code, self.image_size = representation, angle_code, image_size
         self.part = formatter.check_part(part)
         self.eos_id, self.vocab_size = eos_id, len(token_texts)
         self.token_texts, self.optional_prefix = tuple(token_texts), optional_prefix
         fields = field_domains(representation, angle_code, image_size)
-        machine = _CharMachine(answer_template(representation, part), fields, optional_prefix)
+        machine = _CharMachine(answer_template(representation, part, after_cue), fields, optional_prefix)
         self.field_names = [f.name for f in machine.fields]
         n_states = machine.n_states
         index = {name: i for i, name in enumerate(self.field_names)}
@@ -310,14 +315,15 @@ class TokenConstraint:
     @classmethod
     def for_part(cls, token_texts: Sequence[str], eos_id: int, config: formatter.FormatConfig, part: str,
                  **kwargs) -> TokenConstraint:
-        """The constraint of one part of `config`'s examples (representation, angle code, image size)."""
+        """The constraint of one part of `config`'s examples (representation, angle code, image size;
+        only individual mode puts a part's cue in the prompt)."""
         return cls(token_texts, eos_id, config.representation, angle_code=config.angle_code,
-                   image_size=config.image_size, part=part, **kwargs)
+                   image_size=config.image_size, part=part, after_cue=config.individual, **kwargs)
 
     def answer(self, ids: Sequence[int]) -> str:
         """The answer that generated ids spell: their texts up to EOS, without the optional prefix.
         (A tokenizer's decode may keep that space: SentencePiece drops a leading "▁" but not a byte
-        piece's space.) For a location or angle part this is the value to put after the cue."""
+        piece's space.) For a location or angle part this is what follows the prompt's cue."""
         ids = [int(i) for i in ids]
         if self.eos_id in ids:
             ids = ids[:ids.index(self.eos_id)]
@@ -355,7 +361,7 @@ class TokenConstraint:
 class CuePrompt(NamedTuple):
     part: str  # "grasp", "location" or "angle"
     cue: str  # what the prompt ends with after the instruction ("" in joint mode)
-    constraint: TokenConstraint  # admits exactly the part's value after the cue
+    constraint: TokenConstraint  # admits exactly what follows the cue
 
     def target_text(self, ids) -> str:
         """The target text of generated ids (cue and value), as formatter.parse_target takes it."""
