@@ -270,8 +270,7 @@ class TokenConstraint:
     the part's whole text if not `after_cue`; `for_part` takes the settings from a FormatConfig).
     State per row: {"state": automaton state, "reg": spelling index of the completed fields}. A
     token, EOS included, is allowed if the answer can still be completed within the tokens left
-    after it. `min_tokens`: the fewest tokens of a
-    whole answer, EOS included.
+    after it. `min_tokens`: the fewest tokens of a whole answer, EOS included.
     """
 
     def __init__(self, token_texts: Sequence[str], eos_id: int, representation: str = "xya", *,
