@@ -62,6 +62,12 @@ class Kosmos2Config:
     # Run-time policy, not part of the checkpoint.
     compute_dtype: str = "float32"  # "float32" or "bfloat16"; params, softmax and LayerNorm stay float32
     magneto_init: bool = True  # scale decoder fc1/fc2/out_proj/v_proj by sqrt(log(2N)) at init
+    # Blocks of each tower stacked on a leading `layers` axis and applied under nnx.scan: compile
+    # time and program size stop growing with depth. Changes parameter paths, not values. Like every
+    # nnx transform, scan and remat refuse variables made outside the current jax trace: inside raw
+    # jax.jit/grad/lax.scan, call a model merged there (nnx.merge(..., copy=True) for closed-over state).
+    scan_layers: bool = False
+    remat: bool = False  # recompute each block's activations in the backward pass (less memory)
 
     @property
     def dtype(self):

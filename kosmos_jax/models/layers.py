@@ -71,3 +71,40 @@ def dot_product_attention(q, k, v, mask, dropout: nnx.Dropout | None = None):
         weights = dropout(weights)
     out = jnp.einsum("bhts,bhsd->bhtd", weights.astype(v.dtype), v).transpose(0, 2, 1, 3)
     return constrain(out, HEADS)
+
+
+# -- stacks of blocks: a Python list (one copy of each block in the program) or one scanned module --
+LAYERS = "layers"  # logical name of the leading axis of stacked blocks' variables
+_STACKED = {nnx.PARTITION_NAME: LAYERS, "logical_axes": LAYERS}  # vmap prepends it to every logical_axes
+
+
+def stack_blocks(make_block, count: int, rngs: nnx.Rngs) -> nnx.Module:
+    """`count` blocks made by `make_block(rngs)` as ONE module whose variables carry a leading [count]
+    axis; every block draws from its own split of each rng stream (own init, own dropout masks)."""
+
+    @nnx.split_rngs(splits=count)
+    @nnx.vmap(in_axes=(0,), out_axes=0, transform_metadata=_STACKED)
+    def create(rngs):
+        return make_block(rngs)
+
+    return create(rngs)
+
+
+def scan_blocks(call, blocks: nnx.Module, x, per_layer, *shared):
+    """x through the stacked `blocks` in order, `x, out_i = call(block_i, x, per_layer_i, *shared)`;
+    returns (x, the outs stacked on a leading axis). `per_layer` has a leading [count] axis (or is None)."""
+
+    @nnx.scan(in_axes=(0, nnx.Carry, 0) + (None,) * len(shared), out_axes=(nnx.Carry, 0))
+    def body(block, x, per_layer, *shared):
+        return call(block, x, per_layer, *shared)
+
+    return body(blocks, x, per_layer, *shared)
+
+
+def rematerialised(call, enabled: bool, in_scan: bool):
+    """`call` under nnx.remat when enabled: its activations are recomputed in the backward pass."""
+    if not enabled:
+        return call
+    # Under scan the recomputation cannot be merged with the forward pass, so CSE need not be
+    # blocked (jax.checkpoint's advice); blocking it there only costs speed.
+    return nnx.remat(call, prevent_cse=not in_scan)

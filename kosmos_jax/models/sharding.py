@@ -29,6 +29,7 @@ LOGICAL_AXIS_RULES: tuple[tuple[str, str | tuple[str, ...] | None], ...] = (
     ("patch", None),  # patch-conv kernel height, width, channels
     ("positions", None),
     ("latents", None),
+    ("layers", None),  # the leading axis of stacked (scanned) blocks: every device holds every layer's slice
     ("act_embed", None),  # activations' feature axis: replicated between tensor-parallel ops
     ("act_mlp", "tensor"),
     ("act_heads", "tensor"),
