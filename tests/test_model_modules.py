@@ -235,6 +235,7 @@ def test_kv_cache_and_connector_output_follow_the_rules_and_every_rule_is_used(m
         assert placed(array, batch, None, "tensor", None)  # heads split as the attention splits them
     assert placed(fresh["valid"], batch, None)
     np.testing.assert_allclose(np.asarray(logits), np.asarray(expected), atol=2e-5)
-    param_names = {name for _, var in nnx.to_flat_state(nnx.state(model, nnx.Param))
+    scanned = abstract_model(model.config.replace(scan_layers=True))  # adds the stacked blocks' `layers`
+    param_names = {name for layout in (model, scanned) for _, var in nnx.to_flat_state(nnx.state(layout, nnx.Param))
                    for name in var.get_metadata()["logical_axes"]}
     assert {name for name, _ in sharding.LOGICAL_AXIS_RULES} == param_names | activation_names

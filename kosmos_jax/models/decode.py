@@ -57,7 +57,7 @@ def prefill(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds,
     """Run the prompt through the decoder, filling slots [0, T) of a fresh cache of `max_len` slots."""
     cfg = model.config.text
     attention_mask = attention_mask.astype(bool)
-    cache = init_cache(cfg, input_ids.shape[0], max_len, model.config.dtype)
+    cache = init_cache(cfg, input_ids.shape[0], max_len, model.config.dtype, stacked=model.config.scan_layers)
     positions = position_ids(attention_mask, cfg.pad_token_id)
     hidden, cache = model.text_model.model(input_ids, attention_mask, positions, image_embeds, image_mask, cache)
     logits = model.text_model.logits(hidden[:, -1:])[:, 0]
@@ -87,6 +87,9 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
                          f"allows takes {constraint.min_tokens} tokens (EOS included)")
     cfg = model.config.text
     batch, prompt_len = input_ids.shape
+    # The loop bodies below use a copy of the model made inside them: nnx transforms within the model
+    # (nnx.scan over scanned layers) refuse variables created outside the jax.lax.scan trace.
+    graphdef, state = nnx.split(model)
     cstate = constraint.init(batch)
     done = jnp.zeros((batch,), bool)
     if use_cache:
@@ -97,7 +100,7 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
 
         def body(carry, i):
             token, valid, cache, n_real, cstate, done = carry  # valid: `token` came before the row's EOS
-            logits, cache, n_real = step(model, token, valid, cache, n_real)
+            logits, cache, n_real = step(nnx.merge(graphdef, state, copy=True), token, valid, cache, n_real)
             new, cstate, new_done = _pick(logits, constraint, cstate, done, max_new_tokens - i, cfg.eos_token_id,
                                           cfg.pad_token_id)
             return (new, ~done, cache, n_real, cstate, new_done), (new, logits)
@@ -113,7 +116,7 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
 
         def body(carry, i):
             ids, mask, cstate, done = carry
-            logits = model(ids, mask, image_mask, image_embeds=image_embeds)
+            logits = nnx.merge(graphdef, state, copy=True)(ids, mask, image_mask, image_embeds=image_embeds)
             logits = jax.lax.dynamic_index_in_dim(logits, prompt_len + i - 1, axis=1, keepdims=False)
             token, cstate, done_new = _pick(logits, constraint, cstate, done, max_new_tokens - i, cfg.eos_token_id,
                                             cfg.pad_token_id)

@@ -2,7 +2,8 @@
 
 A key-value cache is a plain pytree passed in and returned (static shapes, so it lives inside jit):
 `{"k": [L x [B, S, H, Dh]], "v": [...], "valid": [B, S] bool, "index": int32}` where `index` is the
-slot the next token is written to and `valid` marks slots holding real (non-padding) tokens.
+slot the next token is written to and `valid` marks slots holding real (non-padding) tokens. With
+scanned layers (`scan_layers`) "k" and "v" are instead single [L, B, S, H, Dh] arrays.
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import TextConfig
-from kosmos_jax.models.layers import ACT, HEADS, LayerNorm, dense, dot_product_attention, gelu_exact, split_heads
+from kosmos_jax.models.layers import (ACT, HEADS, LAYERS, LayerNorm, dense, dot_product_attention, gelu_exact,
+                                      rematerialised, scan_blocks, split_heads, stack_blocks)
 from kosmos_jax.models.sharding import constrain, logical
 
 
@@ -112,10 +114,18 @@ def scatter_image_embeds(token_embeds, image_embeds, image_mask):
     return jnp.where(image_mask[..., None], gathered, token_embeds)
 
 
+def _block_step(layer: TextBlock, x, layer_cache, mask, index):
+    """One block in scan_blocks' argument order: the carry, the per-layer input, the shared ones."""
+    return layer(x, mask, layer_cache, index)
+
+
 class TextTransformer(nnx.Module):
-    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0):
+    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, *,
+                 scan_layers: bool = False, remat: bool = False):
         self.cfg = cfg
         self.dtype = dtype
+        self.scan_layers = scan_layers
+        self.remat = remat
         self.embed_scale = math.sqrt(cfg.embed_dim) if cfg.scale_embedding else 1.0
         # std d^-0.5: the scaled embedding has unit variance (fairseq's choice for tied embeddings)
         self.embed_tokens = nnx.Embed(
@@ -123,7 +133,10 @@ class TextTransformer(nnx.Module):
             embedding_init=logical(jax.nn.initializers.normal(cfg.embed_dim**-0.5), ("vocab", "embed")),
             rngs=rngs,
         )
-        self.layers = nnx.List([TextBlock(cfg, dtype, rngs, magneto_gain) for _ in range(cfg.layers)])
+        if scan_layers:
+            self.layers = stack_blocks(lambda r: TextBlock(cfg, dtype, r, magneto_gain), cfg.layers, rngs)
+        else:
+            self.layers = nnx.List([TextBlock(cfg, dtype, rngs, magneto_gain) for _ in range(cfg.layers)])
         self.layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)
         self.dropout = nnx.Dropout(cfg.dropout, rngs=rngs)
 
@@ -151,20 +164,28 @@ class TextTransformer(nnx.Module):
             causal = slots[None, :] <= (index + jnp.arange(t))[:, None]
             mask = causal[None, None] & valid[:, None, None, :]
             new_cache = {"k": [], "v": [], "valid": valid, "index": index + t}
-        for i, layer in enumerate(self.layers):
-            layer_cache = None if cache is None else (cache["k"][i], cache["v"][i])
-            x, layer_cache = layer(x, mask, layer_cache, index)
+        block = rematerialised(_block_step, self.remat, in_scan=self.scan_layers)
+        if self.scan_layers:
+            stacked_cache = None if cache is None else (cache["k"], cache["v"])
+            x, stacked_cache = scan_blocks(block, self.layers, x, stacked_cache, mask, index)
             if cache is not None:
-                new_cache["k"].append(layer_cache[0])
-                new_cache["v"].append(layer_cache[1])
+                new_cache["k"], new_cache["v"] = stacked_cache
+        else:
+            for i, layer in enumerate(self.layers):
+                layer_cache = None if cache is None else (cache["k"][i], cache["v"][i])
+                x, layer_cache = block(layer, x, layer_cache, mask, index)
+                if cache is not None:
+                    new_cache["k"].append(layer_cache[0])
+                    new_cache["v"].append(layer_cache[1])
         return self.layer_norm(x).astype(jnp.float32), new_cache
 
 
 class TextForCausalLM(nnx.Module):
     """`text_model`: the decoder plus the LM head tied to `embed_tokens` (no parameter of its own)."""
 
-    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0):
-        self.model = TextTransformer(cfg, dtype, rngs, magneto_gain)
+    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, *,
+                 scan_layers: bool = False, remat: bool = False):
+        self.model = TextTransformer(cfg, dtype, rngs, magneto_gain, scan_layers=scan_layers, remat=remat)
 
     def logits(self, hidden):
         table = self.model.embed_tokens.embedding[...]
@@ -173,12 +194,17 @@ class TextForCausalLM(nnx.Module):
         return constrain(out, ("batch", "length", "act_vocab"))
 
 
-def init_cache(cfg: TextConfig, batch: int, max_len: int, dtype=jnp.float32) -> dict:
+def init_cache(cfg: TextConfig, batch: int, max_len: int, dtype=jnp.float32, stacked: bool = False) -> dict:
+    """An empty cache; `stacked` gives the scanned layout ([L, ...] arrays instead of lists)."""
     head_dim = cfg.embed_dim // cfg.attention_heads
     shape = (batch, max_len, cfg.attention_heads, head_dim)
+    if stacked:
+        k, v = (constrain(jnp.zeros((cfg.layers, *shape), dtype), (LAYERS, *HEADS)) for _ in range(2))
+    else:
+        k, v = ([constrain(jnp.zeros(shape, dtype), HEADS) for _ in range(cfg.layers)] for _ in range(2))
     return {
-        "k": [constrain(jnp.zeros(shape, dtype), HEADS) for _ in range(cfg.layers)],
-        "v": [constrain(jnp.zeros(shape, dtype), HEADS) for _ in range(cfg.layers)],
+        "k": k,
+        "v": v,
         "valid": constrain(jnp.zeros((batch, max_len), bool), ("batch", "length")),
         "index": jnp.zeros((), jnp.int32),
     }

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import VisionConfig
-from kosmos_jax.models.layers import ACT, LayerNorm, dense, dot_product_attention, quick_gelu, split_heads
+from kosmos_jax.models.layers import (ACT, LayerNorm, dense, dot_product_attention, quick_gelu, rematerialised,
+                                      scan_blocks, split_heads, stack_blocks)
 from kosmos_jax.models.sharding import constrain, logical
 
 
@@ -83,27 +84,40 @@ class VisionEncoderLayer(nnx.Module):
         return constrain(x, ACT)
 
 
+def _encoder_step(layer, x, _per_layer):
+    return layer(x), None
+
+
 class VisionEncoder(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs):
-        self.layers = nnx.List([VisionEncoderLayer(cfg, dtype, rngs) for _ in range(cfg.num_hidden_layers)])
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False):
+        self.scan_layers = scan_layers
+        self.remat = remat
+        if scan_layers:
+            self.layers = stack_blocks(lambda r: VisionEncoderLayer(cfg, dtype, r), cfg.num_hidden_layers, rngs)
+        else:
+            self.layers = nnx.List([VisionEncoderLayer(cfg, dtype, rngs) for _ in range(cfg.num_hidden_layers)])
 
     def __call__(self, x):
+        if self.scan_layers:
+            step = rematerialised(_encoder_step, self.remat, in_scan=True)
+            return scan_blocks(step, self.layers, x, None)[0]
+        block = rematerialised(VisionEncoderLayer.__call__, self.remat, in_scan=False)
         for layer in self.layers:
-            x = layer(x)
+            x = block(layer, x)
         return x
 
 
 class VisionTransformer(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs):
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False):
         self.embeddings = VisionEmbeddings(cfg, dtype, rngs)
         self.pre_layrnorm = LayerNorm(cfg.hidden_size, cfg.layer_norm_eps, rngs)  # sic, the checkpoint's name
-        self.encoder = VisionEncoder(cfg, dtype, rngs)
+        self.encoder = VisionEncoder(cfg, dtype, rngs, scan_layers=scan_layers, remat=remat)
         self.post_layernorm = LayerNorm(cfg.hidden_size, cfg.layer_norm_eps, rngs)
 
 
 class VisionModel(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs):
-        self.model = VisionTransformer(cfg, dtype, rngs)
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False):
+        self.model = VisionTransformer(cfg, dtype, rngs, scan_layers=scan_layers, remat=remat)
 
     def __call__(self, pixels: jax.Array) -> jax.Array:
         """Image features for the connector: post_layernorm on ALL tokens, then L2-normalised per token."""
