@@ -20,8 +20,8 @@ FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 TOL = 1e-4
 
 
-def our_outputs(folder, ref):
-    model = weights.load_pretrained(folder)
+def our_outputs(folder, ref, **runtime):
+    model = weights.load_pretrained(folder, **runtime)
     model.eval()
     pixels = jnp.asarray(ref["pixel_values"].transpose(0, 2, 3, 1))  # NCHW -> NHWC
 
@@ -47,9 +47,10 @@ def test_fixture_is_small_and_complete():
     assert sum(p.stat().st_size for p in FIXTURE.iterdir()) < 512 * 1024
 
 
-def test_imported_fixture_matches_pytorch_image_embeds_and_logits():
+@pytest.mark.parametrize("scan_layers", [False, True])
+def test_imported_fixture_matches_pytorch_image_embeds_and_logits(scan_layers):
     ref = dict(np.load(FIXTURE / "reference.npz"))
-    _, (image_embeds, logits) = our_outputs(FIXTURE, ref)
+    _, (image_embeds, logits) = our_outputs(FIXTURE, ref, scan_layers=scan_layers)
     assert image_embeds.shape == ref["image_embeds"].shape == (3, 3, 32)
     assert ref["attention_mask"][-1, 0] == 0  # the fixture does exercise left padding
     assert_matches(ref, image_embeds, logits)

@@ -4,7 +4,9 @@ A folder holds `config.json` and either `model.safetensors` or shards listed in
 `model.safetensors.index.json`. The key of every parameter is its nnx path with the leaf renamed
 (kernel/scale/embedding -> weight); Linear kernels are transposed ((out, in) in PyTorch, (in, out)
 here) and the patch-conv kernel permuted ((out, in, kh, kw) there, (kh, kw, in, out) here).
-Checkpoints stored in bfloat16 or float16 import as float32 parameters.
+Checkpoints stored in bfloat16 or float16 import as float32 parameters. A model with scanned layers
+(`scan_layers`) holds each block parameter once, stacked over the layers; it reads and writes the
+same per-layer keys (`...layers.3.self_attn.q_proj.weight`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from safetensors.numpy import save_file
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
+from kosmos_jax.models.layers import LAYERS
 
 TIED_HEAD = "text_model.lm_head.weight"
 EMBED_TOKENS = "text_model.model.embed_tokens.weight"
@@ -45,6 +48,62 @@ def from_hf(path: tuple, value: np.ndarray) -> np.ndarray:
     if str(path[-1]) == "kernel":
         return value.transpose(2, 3, 1, 0) if value.ndim == 4 else value.T
     return value
+
+
+# -- layouts: one variable per layer (transformers' keys) or one stacked over the layers (scan) ----
+def _after_layers(path: tuple, indexed: bool) -> int | None:
+    """The position just after `layers` in a path that holds (indexed) or lacks a layer index there."""
+    for at, name in enumerate(path[:-1], start=1):
+        if name == LAYERS and isinstance(path[at], int) == indexed:
+            return at
+    return None
+
+
+def _stack_position(path: tuple) -> int | None:
+    """Where a stacked variable's path takes the layer index; None if the variable is not stacked."""
+    return _after_layers(path, indexed=False)
+
+
+def layer_paths(path: tuple, shape: tuple[int, ...]) -> list[tuple]:
+    """The per-layer paths of a variable of that shape: its own path when it is not stacked."""
+    at = _stack_position(path)
+    return [path] if at is None else [(*path[:at], i, *path[at:]) for i in range(shape[0])]
+
+
+def unstack_layers(flat: dict[tuple, object]) -> dict[tuple, object]:
+    """{path: array} of a scanned model -> the per-layer layout's {path: array}, sorted by path."""
+    out = {}
+    for path, value in flat.items():
+        if _stack_position(path) is None:
+            out[path] = value
+        else:
+            out.update(zip(layer_paths(path, value.shape), value))
+    return dict(sorted(out.items(), key=lambda item: item[0]))
+
+
+def stack_layers(flat: dict[tuple, object]) -> dict[tuple, object]:
+    """{path: array} of the per-layer layout -> the scanned layout's {path: array}, sorted by path."""
+    out, layers = {}, {}
+    for path, value in flat.items():
+        at = _after_layers(path, indexed=True)
+        if at is None:
+            out[path] = value
+        else:
+            layers.setdefault((*path[:at], *path[at + 1:]), {})[path[at]] = value
+    for path, by_index in layers.items():
+        out[path] = jnp.stack([by_index[i] for i in range(len(by_index))])
+    return dict(sorted(out.items(), key=lambda item: item[0]))
+
+
+def with_layout(model: Kosmos2, scan_layers: bool) -> Kosmos2:
+    """The same model (parameters and rng state) with its blocks stacked or listed; a new model."""
+    if model.config.scan_layers == scan_layers:
+        return model
+    graphdef, target = nnx.split(abstract_model(model.config.replace(scan_layers=scan_layers)))
+    source = {path: var.get_value() for path, var in nnx.to_flat_state(nnx.state(model))}
+    values = stack_layers(source) if scan_layers else unstack_layers(source)
+    flat = nnx.to_flat_state(target)
+    return nnx.merge(graphdef, nnx.from_flat_state([(path, var.replace(values[path])) for path, var in flat]))
 
 
 # -- reading ------------------------------------------------------------------------------------
@@ -92,7 +151,8 @@ def _fill_rng_state(rest: nnx.State, seed: int) -> nnx.State:
     filled = []
     for i, leaf in enumerate(leaves):
         if jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key):
-            filled.append(jax.random.fold_in(base, i))
+            key = jax.random.fold_in(base, i)
+            filled.append(key if leaf.shape == () else jax.random.split(key, leaf.shape))  # stacked: one per layer
         else:
             filled.append(jnp.zeros(leaf.shape, leaf.dtype))
     return jax.tree.unflatten(treedef, filled)
@@ -102,7 +162,7 @@ def params_from_tensors(cfg: Kosmos2Config, tensors: dict[str, np.ndarray], sour
     """(graphdef, param state, other state shapes) with every parameter taken from `tensors`."""
     graphdef, params, rest = nnx.split(abstract_model(cfg), nnx.Param, ...)
     flat = nnx.to_flat_state(params)
-    expected = {hf_key(path): path for path, _ in flat}
+    expected = {hf_key(layer_path) for path, var in flat for layer_path in layer_paths(path, var.shape)}
     missing = sorted(set(expected) - set(tensors))
     unexpected = sorted(set(tensors) - set(expected) - {TIED_HEAD, *IGNORED_KEYS})
     if missing or unexpected:
@@ -111,16 +171,24 @@ def params_from_tensors(cfg: Kosmos2Config, tensors: dict[str, np.ndarray], sour
                          f"unexpected {unexpected[:8]}{'...' if len(unexpected) > 8 else ''}")
     if TIED_HEAD in tensors and not np.array_equal(tensors[TIED_HEAD], tensors[EMBED_TOKENS]):
         raise ValueError(f"{source}: {TIED_HEAD} differs from {EMBED_TOKENS}; untied heads are not supported")
-    values = []
-    for path, var in flat:
-        key = hf_key(path)
-        value = from_hf(path, tensors[key])
-        if value.shape != var.shape:
-            raise ValueError(f"{source}: {key} has shape {tensors[key].shape}, the config implies "
-                             f"{to_hf(path, np.zeros(var.shape, np.float32)).shape}")
-        values.append(jnp.asarray(value, jnp.float32))
+    values = [jnp.asarray(_read_variable(path, var.shape, tensors, source), jnp.float32) for path, var in flat]
     params = nnx.from_flat_state([(path, var.replace(value)) for (path, var), value in zip(flat, values)])
     return graphdef, params, rest
+
+
+def _read_variable(path: tuple, shape: tuple[int, ...], tensors: dict[str, np.ndarray], source: str) -> np.ndarray:
+    """One variable's value from its tensor, or from one tensor per layer when it is stacked."""
+    stacked = _stack_position(path) is not None
+    layer_shape = shape[1:] if stacked else shape
+    values = []
+    for layer_path in layer_paths(path, shape):
+        key = hf_key(layer_path)
+        value = from_hf(layer_path, tensors[key])
+        if value.shape != layer_shape:
+            raise ValueError(f"{source}: {key} has shape {tensors[key].shape}, the config implies "
+                             f"{to_hf(layer_path, np.zeros(layer_shape, np.float32)).shape}")
+        values.append(value)
+    return np.stack(values) if stacked else values[0]
 
 
 def load_pretrained(folder: str | pathlib.Path, seed: int = 0, **runtime) -> Kosmos2:
@@ -133,7 +201,8 @@ def load_pretrained(folder: str | pathlib.Path, seed: int = 0, **runtime) -> Kos
 # -- writing ------------------------------------------------------------------------------------
 def model_tensors(model: Kosmos2) -> dict[str, np.ndarray]:
     flat = nnx.to_flat_state(nnx.state(model, nnx.Param))
-    return {hf_key(path): to_hf(path, np.asarray(var.get_value(), np.float32)) for path, var in flat}
+    arrays = unstack_layers({path: np.asarray(var.get_value(), np.float32) for path, var in flat})
+    return {hf_key(path): to_hf(path, value) for path, value in arrays.items()}
 
 
 def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes: int | None = None) -> pathlib.Path:
