@@ -27,8 +27,9 @@ import time
 
 import numpy as np
 
-from kosmos_jax.data import build, synthetic
-from kosmos_jax.storage import pipeline, tfds_builders
+from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.dataset import build
+from kosmos_jax.dataset import pipeline, tfds_builders
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
@@ -41,7 +42,7 @@ def source_and_annotations(args, scratch: pathlib.Path):
         annotations = SHARED / "kosmos-e" / "instructions-original.json"
         return SHARED / "cornell", str(annotations) if annotations.exists() else None
     root = scratch / "synthetic"
-    synthetic.write_dataset(root, photos=40, seed=0)
+    scenes.write_dataset(root, photos=40, seed=0)
     return root, None
 
 

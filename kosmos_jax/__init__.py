@@ -1,3 +1,19 @@
-"""kosmos_jax: KOSMOS-E (instruction-following grasping with a multimodal LM) in JAX/Flax."""
+"""kosmos_jax: KOSMOS-E (instruction-following grasping with a multimodal LM) in JAX/Flax.
+
+The packages are the stages of the pipeline, in this order; each imports only from the ones above
+it (tests/test_layout.py checks this):
+  geometry, grasp_text, publish  conventions (DESIGN.md section 2) and atomic folder writes
+  metrics       the rectangle metric
+  data          1. readers (Cornell, Jacquard, KOSMOS-E annotations), folds, synthetic scenes
+  augment       2. jit augmentation: photos -> 224 views
+  annotators    3. each object's words
+  instruct      4. INSTRUCT-GRASP samples of every kind, mosaics
+  text          5. grasp text, tokenizers, prompt layout
+  dataset       6. the build: views of each protocol, samples, array_record files, grain batches
+  models        7. KOSMOS-2 in flax.nnx, weights, constrained decoding
+  train         8. the sharded training step, optimiser, checkpoints, the trainer
+  evaluation    9. scores under both protocols
+  demo          what `make demo` runs
+"""
 
 __version__ = "0.1.0"

@@ -21,8 +21,10 @@ import time
 from absl import app
 from ml_collections import config_flags
 
-from kosmos_jax.data import cornell, synthetic
-from kosmos_jax.evaluation import baselines, scoring, views
+from kosmos_jax.data import cornell
+from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.dataset import views
+from kosmos_jax.evaluation import baselines, scoring
 from kosmos_jax.metrics import BACKENDS
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -35,10 +37,10 @@ def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
     synthetic_meta.json (an older version stopped while writing it) is written again; anything else
     in the way is an error (write_dataset's), never deleted."""
     root = out / f"synthetic_{photos}_seed{seed}"
-    if (root / synthetic.META_NAME).exists():
+    if (root / scenes.META_NAME).exists():
         return root
     print(f"writing {photos} synthetic photos to {root}", file=sys.stderr)
-    synthetic.write_dataset(root, photos=photos, seed=seed, overwrite=True, progress=True)
+    scenes.write_dataset(root, photos=photos, seed=seed, overwrite=True, progress=True)
     return root
 
 
@@ -47,7 +49,7 @@ def evaluate_source(name: str, root: pathlib.Path, seed: int, k: int = 5) -> lis
     object_of = {p.id: p.object_id for p in photos}
     rows = []
     for protocol in views.PROTOCOLS:
-        test_views = views.make_views(photos, protocol, seed=seed, progress=True)
+        test_views = views.evaluation_views(photos, protocol, seed=seed, progress=True)
         for scheme in ("image", "object"):
             folds = scoring.view_folds(test_views, scheme, protocol, object_of, k=k, seed=seed)
             for backend in BACKENDS:

@@ -75,7 +75,7 @@ def test_real_kosmos_e_file_words(kosmos_e_annotations):
 
 
 def test_synthetic_metadata_words(tmp_path):
-    from kosmos_jax.data import synthetic as synthetic_data
+    from kosmos_jax.data.synthetic import scenes as synthetic_data
 
     synthetic_data.write_dataset(tmp_path / "syn", 3, 5)
     meta = json.loads((tmp_path / "syn" / "synthetic_meta.json").read_text())["photos"]

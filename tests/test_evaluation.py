@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from kosmos_jax import demo
-from kosmos_jax.data import cornell, synthetic
+from kosmos_jax.data import cornell
+from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.data.photo import Photo
-from kosmos_jax.evaluation import baselines, scoring, views
+from kosmos_jax.dataset import views
+from kosmos_jax.evaluation import baselines, scoring
 
 _spec = importlib.util.spec_from_file_location("demo_settings", pathlib.Path(__file__).parents[1] / "configs" / "demo.py")
 demo_settings = importlib.util.module_from_spec(_spec)
@@ -34,7 +36,7 @@ def photos():
 
 
 def test_honest_views_are_photo_centre_crops_with_grasps_moved(photos):
-    v = views.make_views(photos, "honest")
+    v = views.evaluation_views(photos, "honest")
     assert v.images.shape == (10, 224, 224, 3) and list(v.copy) == [0] * 10
     # 351 crop at the photo centre: corner (144.5, 64.5) rounded to (145, 65); then the central 224
     # starts 63 px further in: a pure shift by (208, 128), pixels copied exactly.
@@ -46,7 +48,7 @@ def test_honest_views_are_photo_centre_crops_with_grasps_moved(photos):
 
 
 def test_paper_views_are_centred_on_the_labels(photos):
-    v = views.make_views(photos, "paper", seed=3)
+    v = views.evaluation_views(photos, "paper", seed=3)
     assert len(v.photo_id) == 90 and sorted(set(v.copy)) == list(range(9))
     # rotation about the crop centre (the label centroid) keeps it there; the shift moves it <= 40 px
     for row in range(90):
@@ -54,16 +56,16 @@ def test_paper_views_are_centred_on_the_labels(photos):
         if kept.all():
             offset = v.grasps[row, :, :2].mean(axis=0) - 112
             assert np.abs(offset).max() <= 41.5
-    again = views.make_views(photos, "paper", seed=3)
+    again = views.evaluation_views(photos, "paper", seed=3)
     np.testing.assert_array_equal(again.grasps, v.grasps)
 
 
 def test_views_reject_bad_input(photos):
     with pytest.raises(ValueError, match="protocol"):
-        views.make_views(photos, "leaky")
+        views.evaluation_views(photos, "leaky")
     photos[0].rgb = None
     with pytest.raises(ValueError, match="pcd0100"):
-        views.make_views(photos, "honest")
+        views.evaluation_views(photos, "honest")
 
 
 def test_ground_truth_mean_treats_angles_as_axes():
@@ -159,12 +161,12 @@ def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys, monkeypatch):
 
 def test_demo_rewrites_a_stale_partial_set_from_older_versions(tmp_path, capsys):
     root = tmp_path / "synthetic_2_seed0"
-    synthetic.write_dataset(root, 2, 0)
+    scenes.write_dataset(root, 2, 0)
     (root / "synthetic_meta.json").unlink()  # an older version was stopped before writing it
     (root / "01" / "pcd0101r.png").unlink()
     assert demo.synthetic_source(tmp_path, 2, 0) == root
     assert "writing 2 synthetic photos" in capsys.readouterr().err
-    assert synthetic.read_meta(root).keys() == {"pcd0100", "pcd0101"}
+    assert scenes.read_meta(root).keys() == {"pcd0100", "pcd0101"}
     assert len(cornell.load_photos(root, load_images=False)) == 2
     assert demo.synthetic_source(tmp_path, 2, 0) == root  # complete now: reused, not written again
     assert "writing" not in capsys.readouterr().err

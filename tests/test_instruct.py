@@ -9,7 +9,8 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.annotators.base import MissingWordsError, ObjectWords
 from kosmos_jax.annotators.kosmos_e import words_from_entry
-from kosmos_jax.instruct import kinds, position
+from kosmos_jax.annotators import position
+from kosmos_jax.instruct import kinds
 from kosmos_jax.instruct.sample import View
 from kosmos_jax.instruct.single import single_samples
 

@@ -7,7 +7,7 @@ import socket
 
 import pytest
 
-from kosmos_jax.storage import publish
+from kosmos_jax import publish
 
 
 def contents(root: pathlib.Path) -> dict:

@@ -23,8 +23,9 @@ import tifffile
 from shapely.geometry import Point, Polygon
 
 from kosmos_jax import geometry
-from kosmos_jax.data import cornell, synthetic
-from kosmos_jax.data.synthetic_objects import CATEGORIES, PALETTE
+from kosmos_jax.data import cornell
+from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.data.synthetic.objects import CATEGORIES, PALETTE
 
 PHOTOS = 60  # 5 photos per object at most, so >= 12 objects: the first round shows 12+ categories
 SEED = 7
@@ -34,7 +35,7 @@ MASK_THRESHOLD_M = 0.004  # half the generator's minimum object height
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("synthetic") / "cornell"
-    synthetic.write_dataset(root, PHOTOS, SEED)
+    scenes.write_dataset(root, PHOTOS, SEED)
     meta = json.loads((root / "synthetic_meta.json").read_text())
     return root, meta
 
@@ -103,14 +104,14 @@ def part_polygon(part):
 
 
 def test_photo_stems_continue_into_new_folders_every_100_photos():
-    assert synthetic.photo_stem(0) == ("01", "pcd0100")
-    assert synthetic.photo_stem(99) == ("01", "pcd0199")
-    assert synthetic.photo_stem(100) == ("02", "pcd0200")
-    assert synthetic.photo_stem(900) == ("10", "pcd1000")
+    assert scenes.photo_stem(0) == ("01", "pcd0100")
+    assert scenes.photo_stem(99) == ("01", "pcd0199")
+    assert scenes.photo_stem(100) == ("02", "pcd0200")
+    assert scenes.photo_stem(900) == ("10", "pcd1000")
 
 
 def test_plan_shows_each_object_in_several_photos_and_many_categories():
-    long_plan = synthetic.plan(0, 2000)
+    long_plan = scenes.plan(0, 2000)
     per_object = Counter(p.object_index for p in long_plan)
     mean = np.mean(list(per_object.values()))
     assert 3.3 < mean < 4.1, mean  # Cornell: 885 photos of 280 objects, about 3.7 a object
@@ -119,9 +120,9 @@ def test_plan_shows_each_object_in_several_photos_and_many_categories():
     for index in per_object:
         rows = [p for p in long_plan if p.object_index == index]
         assert len({(p.category, p.background_index) for p in rows}) == 1
-    assert len({p.category for p in synthetic.plan(0, PHOTOS)}) >= 12
-    assert synthetic.plan(0, 50) == long_plan[:50]
-    assert synthetic.plan(1, 50) != long_plan[:50]
+    assert len({p.category for p in scenes.plan(0, PHOTOS)}) >= 12
+    assert scenes.plan(0, 50) == long_plan[:50]
+    assert scenes.plan(1, 50) != long_plan[:50]
 
 
 # ---- layout and formats ----------------------------------------------------------------------
@@ -130,7 +131,7 @@ def test_plan_shows_each_object_in_several_photos_and_many_categories():
 def test_layout_images_and_depth(dataset):
     root, meta = dataset
     assert sorted(p.name for p in root.iterdir()) == ["01", "processedData", "synthetic_meta.json"]
-    stems = [synthetic.photo_stem(i)[1] for i in range(PHOTOS)]
+    stems = [scenes.photo_stem(i)[1] for i in range(PHOTOS)]
     assert list(meta["photos"]) == stems
     assert sorted(p.name for p in (root / "01").iterdir()) == sorted(
         f"{s}{k}" for s in stems for k in ("r.png", "d.tiff", "cpos.txt", "cneg.txt"))
@@ -310,9 +311,9 @@ def all_files(root):
 def test_same_seed_same_bytes_and_prefix_stable(dataset, tmp_path):
     root, _ = dataset
     first, second, other = tmp_path / "a", tmp_path / "b", tmp_path / "c"
-    synthetic.write_dataset(first, 5, SEED)
-    synthetic.write_dataset(second, 5, SEED)
-    synthetic.write_dataset(other, 5, SEED + 1)
+    scenes.write_dataset(first, 5, SEED)
+    scenes.write_dataset(second, 5, SEED)
+    scenes.write_dataset(other, 5, SEED + 1)
     assert all_files(first) == all_files(second) == all_files(other)
     for rel in all_files(first):
         assert filecmp.cmp(first / rel, second / rel, shallow=False), rel
@@ -333,7 +334,7 @@ def test_same_seed_same_bytes_and_prefix_stable(dataset, tmp_path):
 ])
 def test_cli_rejects_bad_numbers(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exit_info:
-        synthetic.main(["--out", str(tmp_path / "out"), *args])
+        scenes.main(["--out", str(tmp_path / "out"), *args])
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
@@ -344,24 +345,24 @@ def test_cli_refuses_to_clobber_and_overwrites_only_its_own_output(tmp_path, cap
     foreign.mkdir()
     (foreign / "notes.txt").write_text("keep me")
     with pytest.raises(SystemExit):
-        synthetic.main(["--out", str(foreign), "--photos", "1"])
+        scenes.main(["--out", str(foreign), "--photos", "1"])
     assert "is not empty; pass --overwrite" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        synthetic.main(["--out", str(foreign), "--photos", "1", "--overwrite"])
+        scenes.main(["--out", str(foreign), "--photos", "1", "--overwrite"])
     assert "holds no synthetic_meta.json" in capsys.readouterr().err
     assert (foreign / "notes.txt").read_text() == "keep me"
 
     a_file = tmp_path / "file"
     a_file.write_text("x")
     with pytest.raises(SystemExit):
-        synthetic.main(["--out", str(a_file), "--photos", "1"])
+        scenes.main(["--out", str(a_file), "--photos", "1"])
     assert "is not a directory" in capsys.readouterr().err
 
     out = tmp_path / "out"
-    assert synthetic.main(["--out", str(out), "--photos", "3", "--seed", "2"]) == 0
+    assert scenes.main(["--out", str(out), "--photos", "3", "--seed", "2"]) == 0
     assert "wrote 3 photos" in capsys.readouterr().err
     (out / "extra.txt").write_text("user file")
-    assert synthetic.main(["--out", str(out), "--photos", "1", "--overwrite"]) == 0
+    assert scenes.main(["--out", str(out), "--photos", "1", "--overwrite"]) == 0
     expected = [f"pcd0100{k}" for k in ("cneg.txt", "cpos.txt", "d.tiff", "r.png")]
     assert sorted(p.name for p in (out / "01").iterdir()) == expected
     assert json.loads((out / "synthetic_meta.json").read_text())["count"] == 1
@@ -369,28 +370,28 @@ def test_cli_refuses_to_clobber_and_overwrites_only_its_own_output(tmp_path, cap
 
 
 def test_write_dataset_reports_progress_on_stderr(tmp_path, capsys):
-    summary = synthetic.write_dataset(tmp_path / "p", 2, 0, progress=True)
+    summary = scenes.write_dataset(tmp_path / "p", 2, 0, progress=True)
     assert "synthetic: 2/2 photos" in capsys.readouterr().err
     assert summary["photos"] == 2 and summary["objects"] >= 1
 
 
 def test_write_dataset_rejects_bad_arguments(tmp_path):
-    for photos in (0, -1, 2.5, True, synthetic.MAX_PHOTOS + 1):
+    for photos in (0, -1, 2.5, True, scenes.MAX_PHOTOS + 1):
         with pytest.raises(ValueError, match="photos must be an integer"):
-            synthetic.write_dataset(tmp_path / "x", photos, 0)
+            scenes.write_dataset(tmp_path / "x", photos, 0)
     with pytest.raises(ValueError, match="seed must be a non-negative integer"):
-        synthetic.write_dataset(tmp_path / "x", 1, -5)
+        scenes.write_dataset(tmp_path / "x", 1, -5)
 
 
 def test_make_scene_is_a_pure_function_of_its_generator():
-    from kosmos_jax.data.synthetic_objects import sample_object
-    from kosmos_jax.data.synthetic_render import make_background
+    from kosmos_jax.data.synthetic.objects import sample_object
+    from kosmos_jax.data.synthetic.render import make_background
 
     spec = sample_object(np.random.default_rng(0), "Mug", 0)
     background = make_background(np.random.default_rng(1), "pcdb_0001")
-    one = synthetic.make_scene(np.random.default_rng(2), spec, background)
-    two = synthetic.make_scene(np.random.default_rng(2), spec, background)
-    three = synthetic.make_scene(np.random.default_rng(3), spec, background)
+    one = scenes.make_scene(np.random.default_rng(2), spec, background)
+    two = scenes.make_scene(np.random.default_rng(2), spec, background)
+    three = scenes.make_scene(np.random.default_rng(3), spec, background)
     np.testing.assert_array_equal(one.rgb, two.rgb)
     np.testing.assert_array_equal(one.depth, two.depth)
     np.testing.assert_array_equal(one.positives, two.positives)
@@ -404,12 +405,12 @@ def test_make_scene_is_a_pure_function_of_its_generator():
 
 def test_read_meta_returns_the_photos_and_names_a_bad_file(dataset, tmp_path):
     root, meta = dataset
-    assert synthetic.read_meta(root) == meta["photos"]
+    assert scenes.read_meta(root) == meta["photos"]
     with pytest.raises(FileNotFoundError, match="synthetic_meta.json not found"):
-        synthetic.read_meta(tmp_path)
+        scenes.read_meta(tmp_path)
     (tmp_path / "synthetic_meta.json").write_text("{broken")
     with pytest.raises(ValueError, match="synthetic_meta.json: not valid JSON"):
-        synthetic.read_meta(tmp_path)
+        scenes.read_meta(tmp_path)
 
 
 # ---- atomic writing --------------------------------------------------------------------------
@@ -420,7 +421,7 @@ def snapshot(root):
 
 
 def stop_at_second_scene(monkeypatch, error):
-    real, calls = synthetic.make_scene, []
+    real, calls = scenes.make_scene, []
 
     def make_scene(*args, **kwargs):
         calls.append(1)
@@ -428,30 +429,30 @@ def stop_at_second_scene(monkeypatch, error):
             raise error
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(synthetic, "make_scene", make_scene)
+    monkeypatch.setattr(scenes, "make_scene", make_scene)
 
 
 def test_an_interrupted_first_write_leaves_nothing(tmp_path, monkeypatch):
     stop_at_second_scene(monkeypatch, KeyboardInterrupt())
     with pytest.raises(KeyboardInterrupt):
-        synthetic.write_dataset(tmp_path / "out", 3, 0)
+        scenes.write_dataset(tmp_path / "out", 3, 0)
     assert list(tmp_path.iterdir()) == []  # neither the folder nor a hidden partial sibling
     monkeypatch.undo()
-    synthetic.write_dataset(tmp_path / "out", 3, 0)  # and the next run simply writes it
-    assert synthetic.read_meta(tmp_path / "out").keys() == {"pcd0100", "pcd0101", "pcd0102"}
+    scenes.write_dataset(tmp_path / "out", 3, 0)  # and the next run simply writes it
+    assert scenes.read_meta(tmp_path / "out").keys() == {"pcd0100", "pcd0101", "pcd0102"}
 
 
 def test_an_interrupted_overwrite_keeps_the_old_set_whole(tmp_path, monkeypatch):
     out = tmp_path / "out"
-    synthetic.write_dataset(out, 2, 1)
+    scenes.write_dataset(out, 2, 1)
     (out / "notes.txt").write_text("mine")
     before = snapshot(out)
     stop_at_second_scene(monkeypatch, RuntimeError("disk full"))
     with pytest.raises(RuntimeError, match="disk full"):
-        synthetic.write_dataset(out, 3, 0, overwrite=True)
+        scenes.write_dataset(out, 3, 0, overwrite=True)
     assert snapshot(out) == before and [p.name for p in tmp_path.iterdir()] == ["out"]
     monkeypatch.undo()
-    synthetic.write_dataset(out, 3, 0, overwrite=True)
+    scenes.write_dataset(out, 3, 0, overwrite=True)
     assert json.loads((out / "synthetic_meta.json").read_text())["count"] == 3
     assert (out / "notes.txt").read_text() == "mine" and [p.name for p in tmp_path.iterdir()] == ["out"]
 
@@ -464,7 +465,7 @@ def test_a_killed_writers_partial_folder_is_removed_by_the_next_write(tmp_path):
     for folder in (dead, live):
         (folder / "01").mkdir(parents=True)
         (folder / "01" / "pcd0100r.png").write_bytes(b"half")
-    synthetic.write_dataset(tmp_path / "out", 1, 0)
+    scenes.write_dataset(tmp_path / "out", 1, 0)
     assert not dead.exists()
     assert live.exists()  # a writer still running (here: this process) is left alone
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, "out"])
@@ -473,46 +474,46 @@ def test_a_killed_writers_partial_folder_is_removed_by_the_next_write(tmp_path):
 def test_the_written_folder_gets_the_usual_permissions(tmp_path):
     umask = os.umask(0o022)
     os.umask(umask)
-    synthetic.write_dataset(tmp_path / "out", 1, 0)
+    scenes.write_dataset(tmp_path / "out", 1, 0)
     assert (tmp_path / "out").stat().st_mode & 0o777 == 0o777 & ~umask
 
 
 def test_partial_dataset_is_recognised_only_when_it_holds_nothing_else(tmp_path):
     root = tmp_path / "old"
-    synthetic.write_dataset(root, 2, 0)
-    assert not synthetic.is_partial_dataset(root)  # complete
+    scenes.write_dataset(root, 2, 0)
+    assert not scenes.is_partial_dataset(root)  # complete
     (root / "synthetic_meta.json").unlink()  # what an older version stopped mid-write left
-    assert synthetic.is_partial_dataset(root)
+    assert scenes.is_partial_dataset(root)
     (root / "processedData" / "z.txt").unlink()
-    assert synthetic.is_partial_dataset(root)
+    assert scenes.is_partial_dataset(root)
     (root / "01" / "holiday.jpg").write_bytes(b"")
-    assert not synthetic.is_partial_dataset(root)
+    assert not scenes.is_partial_dataset(root)
     (root / "01" / "holiday.jpg").unlink()
     (root / "README").write_text("")
-    assert not synthetic.is_partial_dataset(root)
-    assert not synthetic.is_partial_dataset(tmp_path / "absent")
+    assert not scenes.is_partial_dataset(root)
+    assert not scenes.is_partial_dataset(tmp_path / "absent")
 
 
 def test_overwrite_replaces_what_an_older_version_left_half_written(tmp_path, capsys):
     out = tmp_path / "out"
-    synthetic.write_dataset(out, 2, 0)
+    scenes.write_dataset(out, 2, 0)
     (out / "synthetic_meta.json").unlink()  # stopped while writing straight into out
     (out / "01" / "pcd0101r.png").unlink()
     with pytest.raises(ValueError, match="is not empty; pass --overwrite"):
-        synthetic.write_dataset(out, 2, 0)
-    assert synthetic.main(["--out", str(out), "--photos", "2", "--overwrite"]) == 0
-    assert synthetic.read_meta(out).keys() == {"pcd0100", "pcd0101"} and (out / "01" / "pcd0101r.png").is_file()
+        scenes.write_dataset(out, 2, 0)
+    assert scenes.main(["--out", str(out), "--photos", "2", "--overwrite"]) == 0
+    assert scenes.read_meta(out).keys() == {"pcd0100", "pcd0101"} and (out / "01" / "pcd0101r.png").is_file()
     (out / "synthetic_meta.json").unlink()
     (out / "01" / "holiday.jpg").write_bytes(b"photo")  # not the generator's: maybe not a synthetic set
     with pytest.raises(ValueError, match="refusing to overwrite .* holds no synthetic_meta.json and files"):
-        synthetic.write_dataset(out, 2, 0, overwrite=True)
+        scenes.write_dataset(out, 2, 0, overwrite=True)
     assert (out / "01" / "holiday.jpg").read_bytes() == b"photo"
 
 
 def test_colour_words_name_every_large_painted_area():
     """A palette colour covering a fifth of an object's top view (a part, or a decal painted over
     it) is among its colour words, so a colour instruction can refer to what the photo shows."""
-    from kosmos_jax.data.synthetic_objects import CATEGORIES, PALETTE, sample_object
+    from kosmos_jax.data.synthetic.objects import CATEGORIES, PALETTE, sample_object
 
     names_of = {rgb: name for name, rgb in PALETTE.items()}
     for category in CATEGORIES:

@@ -26,7 +26,7 @@ import numpy as np
 
 from kosmos_jax import geometry
 from kosmos_jax.annotators.base import ObjectWords
-from kosmos_jax.instruct.position import position_word
+from kosmos_jax.annotators.position import position_word
 
 # sRGB anchors of the palette; the names are colour words of the KOSMOS-E annotation file.
 PALETTE = {

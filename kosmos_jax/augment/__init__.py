@@ -1,8 +1,7 @@
-"""Augmentation as pure jit-compiled functions over batches, driven by PRNG keys.
+"""Stage 2, augmentation: photos and their grasps in, 224 x 224 views with the grasps moved along out.
 
-affine.py: the per-sample affine of crop -> rotate -> translate -> crop; warp.py: bilinear
-warping of a batch by affines (cv2-compatible, pixel-corner coordinates); pipeline.py: the
-recipe (`augment`, `AugmentConfig`, `PAPER_RECIPE`) moving images and grasps together.
+Pure jit-compiled functions over batches, driven by PRNG keys: affine.py (crop -> rotate ->
+translate -> crop), warp.py (bilinear warping, cv2-compatible), pipeline.py (`augment`, `AugmentConfig`).
 """
 
 from kosmos_jax.augment.pipeline import (

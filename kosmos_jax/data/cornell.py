@@ -38,16 +38,13 @@ import cv2
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.data import objects, text_file
+from kosmos_jax.data import kosmos_e_annotations, objects, text_file
+from kosmos_jax.data.cornell_set import FULL_SET_IDS
 from kosmos_jax.data.photo import Photo
 
 FILE_PATTERN = re.compile(r"^(pcd\d{4})(r\.png|d\.tiff|cpos\.txt|cneg\.txt)$")
 FOLDER_PATTERN = re.compile(r"\d\d")  # the numbered folders 01 .. 10 (use fullmatch)
 
-# The 885 labelled photos of the full data set, sorted (KOSMOS-E's keys "0".."884" follow this).
-FULL_SET_IDS: tuple[str, ...] = tuple(
-    f"pcd{n:04d}" for n in [*range(100, 950), *range(1000, 1035)]
-)
 
 
 class CornellFormatError(ValueError):
@@ -235,7 +232,6 @@ def summarize(root: str | pathlib.Path, *, load_images: bool = True, object_map=
     map_path = object_map_path(root, object_map)
     annotations = None
     if kosmos_e is not None:
-        from kosmos_jax.data import kosmos_e_annotations
         annotations = kosmos_e_annotations.read_annotations(kosmos_e)
     photos = kept = dropped = negative = negative_dropped = with_depth = unmapped = 0
     object_ids, categories, shapes = set(), set(), {}

@@ -1,7 +1,7 @@
 """KOSMOS-E's instruction annotations of the Cornell photos (`instructions-original.json`).
 
 The file has keys "0".."884", key i describing the i-th photo of the SORTED full 885-photo Cornell
-set (cornell.FULL_SET_IDS: pcd0100..pcd0949, pcd1000..pcd1034), whatever subset is present locally.
+set (cornell_set.FULL_SET_IDS: pcd0100..pcd0949, pcd1000..pcd1034), whatever subset is present locally.
 Its `instruction_part` has one sentence per non-NaN rectangle of that photo's cpos.txt, in file
 order, so it lines up with Photo.grasps; `attach` checks the count and raises
 AnnotationMismatchError naming the photo when it differs.
@@ -27,7 +27,7 @@ import pathlib
 from typing import Any, Mapping, Sequence
 
 from kosmos_jax.data import text_file
-from kosmos_jax.data.cornell import FULL_SET_IDS
+from kosmos_jax.data.cornell_set import FULL_SET_IDS
 from kosmos_jax.data.photo import Photo
 
 FIELDS = {

@@ -1,8 +1,7 @@
-"""INSTRUCT-GRASP instructions: NON, SINGLE (8 kinds) and MULTI (2 x 2 mosaics, 6 kinds).
+"""Stage 4, INSTRUCT-GRASP instructions: views and words in, `Sample`s out.
 
-Inputs are augmented views (image, grasps in its pixels, the object's words from an annotator);
-outputs are `Sample`s (instruction sentence, image, every grasp that answers it, the photo and
-object ids inside the image). Formatting to text targets and tokens is a later stage.
+NON, SINGLE (8 kinds) and MULTI (2 x 2 mosaics, 6 kinds): each sample is an instruction sentence,
+an image and every grasp that answers it, with the photo and object ids inside the image.
 """
 
 from kosmos_jax.instruct.kinds import ALL_KINDS, MULTI_KINDS, NON, SINGLE_KINDS, TEMPLATES, check_kind

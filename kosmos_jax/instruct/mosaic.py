@@ -25,7 +25,7 @@ import numpy as np
 from kosmos_jax import geometry
 from kosmos_jax.annotators.base import require
 from kosmos_jax.instruct import distractors as distractor_choice
-from kosmos_jax.instruct import position as position_words
+from kosmos_jax.annotators import position as position_words
 from kosmos_jax.instruct.kinds import ANSWERS, MULTI_KINDS, check_kind
 from kosmos_jax.instruct.sample import Sample, View
 from kosmos_jax.instruct.sentences import object_sentence, position_sentence

@@ -12,7 +12,7 @@ import numpy as np
 
 from kosmos_jax import geometry
 from kosmos_jax.annotators.base import MissingWordsError, normalise_text, require
-from kosmos_jax.instruct import position as position_words
+from kosmos_jax.annotators import position as position_words
 from kosmos_jax.instruct.kinds import ALL_KINDS, ANSWERS, NON, check_kind
 from kosmos_jax.instruct.sample import Sample, View
 from kosmos_jax.instruct.sentences import angle_sentence, object_sentence, part_sentence, position_sentence

@@ -6,7 +6,7 @@ writes, like the real Cornell set (see ../shared/data/README.md):
   DIR/01/pcd0100r.png ...        640x480 RGB photo; 100 photos a folder (01, 02, ..., 10 for pcd1000)
   DIR/01/pcd0100d.tiff           480x640 float32 depth in metres, the GG-CNN-processed convention:
                                  distance from the camera, so objects are SMALLER than the table
-                                 (see synthetic_render's docstring)
+                                 (see render.py's docstring)
   DIR/01/pcd0100cpos.txt, cneg.txt  4 lines `x y` a rectangle, p0 -> p1 the opening (DESIGN.md 2)
   DIR/processedData/z.txt        `0100 3 Mug pcdb_0002`, one line a rectangle, as Cornell's
   DIR/processedData/backgroundMapping.txt
@@ -16,7 +16,7 @@ writes, like the real Cornell set (see ../shared/data/README.md):
 Every object is seen in several photos (about 3.7, as in Cornell) in different poses. The same
 seed gives the same bytes in every file, and photo k does not depend on how many photos follow it.
 
-Writing is atomic (kosmos_jax.storage.publish): the set is made in a hidden sibling folder
+Writing is atomic (kosmos_jax.publish): the set is made in a hidden sibling folder
 (`.staging-DIR-HOST-PID-*`) and renamed to DIR when complete, so a stopped run leaves DIR as it was
 (a killed writer's sibling is deleted by the next write). --overwrite replaces only a synthetic set:
 a folder that holds synthetic_meta.json, or nothing but the generator's files (what a run of an
@@ -27,7 +27,7 @@ API: plan(seed, photos) -> which object each photo shows; make_scene(rng, spec, 
 Scene(rgb, depth, positives, negatives, meta, object_mask); write_dataset(out, photos, seed);
 read_meta(root) -> the per-photo metadata; is_partial_dataset(root) -> whether a folder is what
 an interrupted write of older versions (straight into DIR) left behind. Objects:
-synthetic_objects; drawing and depth: synthetic_render; grasp rectangles: synthetic_grasps.
+objects.py; drawing and depth: render.py; grasp rectangles: grasps.py (this package).
 """
 
 from __future__ import annotations
@@ -48,10 +48,10 @@ import tifffile
 
 from kosmos_jax import geometry
 from kosmos_jax.data import cornell
-from kosmos_jax.data import synthetic_grasps as grasps_lib
-from kosmos_jax.data.synthetic_objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
-from kosmos_jax.data.synthetic_render import HEIGHT, MIN_OBJECT_HEIGHT_M, WIDTH, Background, make_background, render
-from kosmos_jax.storage import publish
+from kosmos_jax.data.synthetic import grasps as grasps_lib
+from kosmos_jax.data.synthetic.objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
+from kosmos_jax.data.synthetic.render import HEIGHT, MIN_OBJECT_HEIGHT_M, WIDTH, Background, make_background, render
+from kosmos_jax import publish
 
 FIRST_NUMBER = 100  # Cornell's photos start at pcd0100
 MAX_PHOTOS = 9999 - FIRST_NUMBER + 1

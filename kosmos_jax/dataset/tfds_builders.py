@@ -15,15 +15,15 @@ Two builders:
   "full" (folds are decided later, by `kosmos_jax.data.splits`).
 - `InstructGrasp`: formatted and tokenized INSTRUCT-GRASP examples, one config per dataset
   identity (`InstructGraspConfig`: a readable name of the main settings plus a hash of the
-  build's full identity, `kosmos_jax.storage.identity`). The examples are made by
-  `kosmos_jax.data.build` and handed to the builder (`records=`), since they depend on the other
+  build's full identity, `kosmos_jax.dataset.identity`). The examples are made by
+  `kosmos_jax.dataset.build` and handed to the builder (`records=`), since they depend on the other
   pipeline stages; the builder owns the layout on disk and the feature spec. Version 2.0.0 stores
-  each distinct image once per split (`kosmos_jax.storage.images`): an example holds
+  each distinct image once per split (`kosmos_jax.dataset.images`): an example holds
   `image_index`, and `open_splits` gives splits that join the image back.
 
 `write_instruct_grasp` never reuses a folder silently: it refuses an existing one unless told to
 overwrite, and writes through a staging folder renamed into place at the end
-(`kosmos_jax.storage.publish`), so a folder under the final name is always complete.
+(`kosmos_jax.publish`), so a folder under the final name is always complete.
 """
 
 from __future__ import annotations
@@ -42,11 +42,11 @@ from etils import epath
 from tensorflow_datasets.core import example_serializer
 
 from kosmos_jax.data import cornell
-from kosmos_jax.storage import identity as identity_lib
-from kosmos_jax.storage import publish
-from kosmos_jax.storage.images import ImageTable, ImageTableWriter, StoredSplit, png_bytes
-from kosmos_jax.storage.samples import ALL_BUILD_KINDS
-from kosmos_jax.storage.shards import ShardWriter
+from kosmos_jax.dataset import identity as identity_lib
+from kosmos_jax import publish
+from kosmos_jax.dataset.images import ImageTable, ImageTableWriter, StoredSplit, png_bytes
+from kosmos_jax.dataset.samples import ALL_BUILD_KINDS
+from kosmos_jax.dataset.shards import ShardWriter
 
 ARRAY_RECORD = "array_record"
 CORNELL_SPLIT = "full"

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from array_record.python import array_record_data_source
 
-from kosmos_jax.storage.shards import ShardWriter
+from kosmos_jax.dataset.shards import ShardWriter
 
 SHARD_IMAGES = 1024
 

@@ -12,10 +12,10 @@ import pytest
 from kosmos_jax.annotators.base import MissingWordsError, ObjectWords
 from kosmos_jax.data import cornell
 from kosmos_jax.instruct.sample import View
-from kosmos_jax.storage import pipeline
-from kosmos_jax.storage.images import digest, png_bytes
-from kosmos_jax.storage.samples import MosaicCounts, split_samples
-from kosmos_jax.storage.tfds_builders import (build_cornell, dataset_folder, make_config, open_cornell, open_splits,
+from kosmos_jax.dataset import pipeline
+from kosmos_jax.dataset.images import digest, png_bytes
+from kosmos_jax.dataset.samples import MosaicCounts, split_samples
+from kosmos_jax.dataset.tfds_builders import (build_cornell, dataset_folder, make_config, open_cornell, open_splits,
                                               write_instruct_grasp)
 
 LENGTH, SIZE = 80, 16
@@ -91,9 +91,9 @@ except ModuleNotFoundError:
     pass
 assert importlib.util.find_spec("tensorflow") is None
 sys.path.insert(0, sys.argv[2])
-import test_storage as t
-from kosmos_jax.storage import pipeline
-from kosmos_jax.storage.tfds_builders import open_splits, write_instruct_grasp
+import test_dataset_storage as t
+from kosmos_jax.dataset import pipeline
+from kosmos_jax.dataset.tfds_builders import open_splits, write_instruct_grasp
 
 records = {"train": [t._record(i) for i in range(6)], "test": [t._record(9)]}
 path = write_instruct_grasp(records, sys.argv[1], t._config())
@@ -270,7 +270,7 @@ def test_pipeline_errors(written, tmp_path):
 
 
 def test_shards_keep_generation_order(tmp_path, monkeypatch):
-    from kosmos_jax.storage.tfds_builders import InstructGrasp
+    from kosmos_jax.dataset.tfds_builders import InstructGrasp
 
     monkeypatch.setattr(InstructGrasp, "SHARD_EXAMPLES", 10)
     records = {"train": [_record(i) for i in range(23)], "test": [_record(50)]}

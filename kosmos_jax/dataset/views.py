@@ -12,12 +12,20 @@ Two kinds of view:
 Each photo gets its own PRNG key, `fold_in(PRNGKey(seed), index in the sorted photo list)`, so a
 photo's views do not depend on its batch-mates or on the batch size. Grasps whose centre leaves the
 view are dropped and counted; a view left with no grasp is skipped and counted.
+
+The no-learning evaluation (`evaluation_views`) takes its test views from here too, as arrays:
+honest: one view per photo, the 351 crop at the photo's centre (never at the labels), no rotation,
+  no shift, then the central 224 (`cropped_views`' crop with HONEST_TEST_CROP).
+paper: KOSMOS-E's public code evaluates on augmented copies: 351 crops centred on the mean of the
+  ground-truth corners, whole-degree rotations and whole-pixel shifts of up to 40 px, `copies` per
+  photo (3 rotations x 3 shifts = 9, the 885 x 9 set its fold code is written for: PAPER_TEST_VIEWS).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import sys
 from typing import Mapping, Sequence
 
 import jax
@@ -27,9 +35,14 @@ import numpy as np
 from kosmos_jax.augment import affine
 from kosmos_jax.augment.pipeline import AugmentConfig, augment, kept_grasps, move_grasps, pad_grasps
 from kosmos_jax.augment.warp import warp_images
+from kosmos_jax.data.photo import Photo
 from kosmos_jax.instruct.sample import View
 
 RECIPES = ("random", "paper")
+PROTOCOLS = ("honest", "paper")
+PAPER_TEST_VIEWS = AugmentConfig(centre_policy="gt_centroid", rotations_per_photo=3, translations_per_rotation=3,
+                                 integer_steps=True)
+HONEST_TEST_CROP = AugmentConfig(centre_policy="image_centre", max_translation=0.0)
 
 
 @dataclasses.dataclass
@@ -151,3 +164,67 @@ class _Rows:
 
     def __init__(self, grasps, mask):
         self.grasps, self.mask = np.asarray(grasps), np.asarray(mask)
+
+
+# -- the no-learning evaluation's test views, as arrays -------------------------------------------
+
+@dataclasses.dataclass
+class Views:
+    """Test views: row i is copy `copy[i]` of photo `photo_id[i]`."""
+
+    images: np.ndarray  # [V, 224, 224, 3] uint8
+    grasps: np.ndarray  # [V, N, 5] in view pixels
+    mask: np.ndarray  # [V, N] bool
+    photo_id: list[str]
+    copy: np.ndarray  # [V] int
+    dropped: int  # ground truths whose centre left the view
+
+
+def _runs_of_one_shape(photos: Sequence[Photo], size: int):
+    """Consecutive runs of photos with the same image shape, at most `size` long."""
+    start = 0
+    while start < len(photos):
+        stop = start + 1
+        while stop < len(photos) and stop - start < size and photos[stop].rgb.shape == photos[start].rgb.shape:
+            stop += 1
+        yield photos[start:stop]
+        start = stop
+
+
+def evaluation_views(photos: Sequence[Photo], protocol: str = "honest", seed: int = 0, chunk: int = 32,
+                     progress: bool = False) -> Views:
+    """Test views of `photos` (with images) under `protocol`; deterministic for a seed."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+    for photo in photos:
+        if photo.rgb is None:
+            raise ValueError(f"photo {photo.id} has no image: read it with load_images=True")
+    width = max((len(p.grasps) for p in photos), default=0)
+    key = jax.random.key(seed)
+    parts, done = [], 0
+    for group in _runs_of_one_shape(list(photos), chunk):
+        images = jnp.asarray(np.stack([p.rgb for p in group]))
+        grasps, mask = pad_grasps([p.grasps for p in group], width)
+        if protocol == "honest":
+            unused_keys = jax.random.split(jax.random.PRNGKey(0), len(group))  # the image-centre crop draws nothing
+            out = _crop(images, jnp.asarray(grasps), jnp.asarray(mask), unused_keys, HONEST_TEST_CROP)
+            copies = 1
+        else:
+            keys = jax.random.split(jax.random.fold_in(key, done), len(group))
+            batch = augment(images, jnp.asarray(grasps), jnp.asarray(mask), keys, PAPER_TEST_VIEWS)
+            out = (batch.images, batch.grasps, batch.mask, batch.dropped)
+            copies = PAPER_TEST_VIEWS.augmentations_per_photo
+        parts.append(([p.id for p in group for _ in range(copies)], np.tile(np.arange(copies), len(group)), *map(np.asarray, out)))
+        done += len(group)
+        if progress:
+            print(f"views ({protocol}): {done}/{len(photos)} photos", file=sys.stderr, flush=True)
+    if not parts:
+        raise ValueError("no photos to make views of")
+    return Views(
+        images=np.concatenate([p[2] for p in parts]),
+        grasps=np.concatenate([p[3] for p in parts]),
+        mask=np.concatenate([p[4] for p in parts]),
+        photo_id=[i for p in parts for i in p[0]],
+        copy=np.concatenate([p[1] for p in parts]),
+        dropped=int(sum(p[5].sum() for p in parts)),
+    )

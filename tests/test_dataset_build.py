@@ -13,17 +13,17 @@ import cv2
 import numpy as np
 import pytest
 
-from kosmos_jax import geometry
-from kosmos_jax.data import splits, synthetic
-from kosmos_jax.data import build as build_module
-from kosmos_jax.data.build import (BuildCheckError, BuildConfig, build, build_identity, check_example, check_separation,
-                                   check_written, main)
-from kosmos_jax.storage import identity as identity_lib
-from kosmos_jax.storage import images as image_table
-from kosmos_jax.storage import pipeline, publish
-from kosmos_jax.storage.tfds_builders import open_splits
+from kosmos_jax import geometry, publish
+from kosmos_jax.data import cornell, splits
+from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.dataset import build as build_module
+from kosmos_jax.dataset import identity as identity_lib
+from kosmos_jax.dataset import images as image_table
+from kosmos_jax.dataset import inputs, pipeline
+from kosmos_jax.dataset.build import BuildConfig, build, build_identity, main
+from kosmos_jax.dataset.checks import BuildCheckError, check_example, check_separation, check_written
+from kosmos_jax.dataset.tfds_builders import open_splits
 from kosmos_jax.text.formatter import FormatConfig, TextExample, parse_target
-from kosmos_jax.data import cornell
 
 PHOTOS = 15  # 5 objects: enough for 5 object-wise folds
 
@@ -32,7 +32,7 @@ PHOTOS = 15  # 5 objects: enough for 5 object-wise folds
 def source(tmp_path_factory):
     root = tmp_path_factory.mktemp("synthetic")
     shutil.rmtree(root)
-    synthetic.write_dataset(root, photos=PHOTOS, seed=0)
+    scenes.write_dataset(root, photos=PHOTOS, seed=0)
     return root
 
 
@@ -214,13 +214,11 @@ def test_a_photo_without_colour_loses_only_its_colour_kinds(rules_source):
 
 
 def test_a_broken_image_is_an_error_naming_the_photo(rules_source):
-    from kosmos_jax.data import build as build_module
-
     root, _ = rules_source
-    photos, image_files = build_module.read_photos(root)
+    photos, image_files = inputs.read_photos(root)
     photos[1].rgb = photos[1].rgb[..., 0]  # not RGB: bad input, not a missing word
     with pytest.raises(ValueError, match=rf"photo {photos[1].id} \(.*{photos[1].id}r.png\).*\[H, W, 3\]"):
-        build_module.object_words(build_module.word_source(root, None), photos, image_files)
+        inputs.object_words(inputs.word_source(root, None), photos, image_files)
 
 
 def test_paper_protocol_leaks_and_says_so(source):
@@ -285,8 +283,8 @@ def test_each_record_joins_the_image_it_was_made_from(written, source):
     """Every written example, in order, against the examples the build makes from the same config."""
     stats, splits_on_disk = written
     config = BuildConfig(source=str(source), split="object", fold=1, augmentations=2)
-    photos, image_files = build_module.read_photos(source)
-    words = build_module.object_words(build_module.word_source(source, None), photos, image_files)
+    photos, image_files = inputs.read_photos(source)
+    words = inputs.object_words(inputs.word_source(source, None), photos, image_files)
     views, _ = build_module.split_views(config, photos, words)
     single, multi = build_module.sample_stage.parse_kinds(("all",))
     for name, stored in splits_on_disk.items():
@@ -335,7 +333,7 @@ def test_check_written_catches_a_wrong_join_and_a_short_split(written):
 def test_identity_covers_every_data_setting_and_input(source, tmp_path):
     base = BuildConfig(source=str(source), out=str(tmp_path / "a"))
     def key(config):
-        words_from = build_module.word_source(pathlib.Path(config.source), config.annotations)
+        words_from = inputs.word_source(pathlib.Path(config.source), config.annotations)
         return identity_lib.short_hash(build_identity(config, words_from))
 
     changes = {"protocol": "paper", "split": "object", "fold": 1, "folds": 4, "augmentations": 2, "recipe": "paper",

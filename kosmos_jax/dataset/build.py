@@ -1,6 +1,6 @@
 """Build an INSTRUCT-GRASP dataset from a Cornell-format folder and print its statistics as JSON.
 
-    python -m kosmos_jax.data.build --source DIR --out DIR --protocol honest --split image --fold 0 \
+    python -m kosmos_jax.dataset.build --source DIR --out DIR --protocol honest --split image --fold 0 \
         [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0] [--overwrite]
 
 Steps: read the photos (kosmos_jax.data.cornell) -> words of each object (--annotations: the
@@ -9,12 +9,12 @@ pixels, where a photo whose pixels name no colour loses only its colour kinds, l
 statistics) -> folds over photos or objects BEFORE augmentation (kosmos_jax.data.splits, drawn
 with --fold-seed only, so builds that differ in --seed, the augmentation and instruction seed,
 share their test folds) -> views
-(kosmos_jax.storage.views: honest: --augmentations augmented views per training photo and one
+(kosmos_jax.dataset.views: honest: --augmentations augmented views per training photo and one
 un-rotated crop per test photo; paper: --augmentations augmented copies of every photo, folded as
 the public code folds them) -> samples of every kind, mosaics drawn within a split
-(kosmos_jax.storage.samples) -> text examples (kosmos_jax.text.formatter) -> tokenizer (trained on
+(kosmos_jax.dataset.samples) -> text examples (kosmos_jax.text.formatter) -> tokenizer (trained on
 the training split's text, or --tokenizer FILE, a KOSMOS-2 SentencePiece model) -> array_record
-files under OUT (kosmos_jax.storage.tfds_builders; each distinct image once per split, examples
+files under OUT (kosmos_jax.dataset.tfds_builders; each distinct image once per split, examples
 refer to it by index), the tokenizer and build_stats.json beside them.
 
 The dataset's folder is named by its main settings and a hash of its identity (`build_identity`):
@@ -38,44 +38,31 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
-import math
 import pathlib
-import re
 import sys
 from typing import Sequence
 
 import numpy as np
 
-from kosmos_jax import geometry, grasp_text
-from kosmos_jax.annotators import kosmos_e as kosmos_e_words
-from kosmos_jax.annotators import rules as rule_words
-from kosmos_jax.annotators import synthetic as synthetic_words
-from kosmos_jax.annotators.base import ObjectWords
-from kosmos_jax.data import cornell, splits
-from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, parse_annotations
-from kosmos_jax.storage import identity as identity_lib
-from kosmos_jax.storage import images as image_table
-from kosmos_jax.storage import samples as sample_stage
-from kosmos_jax.storage import tfds_builders
-from kosmos_jax.storage.views import augment_config, count_views, make_views
+from kosmos_jax import grasp_text
+from kosmos_jax.data import splits
+from kosmos_jax.dataset import identity as identity_lib
+from kosmos_jax.dataset import images as image_table
+from kosmos_jax.dataset import samples as sample_stage
+from kosmos_jax.dataset import tfds_builders
+from kosmos_jax.dataset.checks import BuildCheckError, check_example, check_separation, check_written, spot_numbers
+from kosmos_jax.dataset.inputs import RULE_KINDS, WordSource, object_words, read_photos, word_source, words_unknown
+from kosmos_jax.dataset.views import augment_config, count_views, make_views
 from kosmos_jax.text import layout
-from kosmos_jax.text.formatter import FormatConfig, format_sample, parse_target
+from kosmos_jax.text.formatter import FormatConfig, format_sample
 from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
 
-WORD_SOURCES = ("kosmos_e", "synthetic", "rules")
-RULE_KINDS = ("non", "angle", "colour", "position", "multi-colour", "multi-position")
 STATS_FILE = "build_stats.json"
-SPOT_CHECKS = 32
 # BuildConfig fields that say where and whether to write, not what: left out of the identity
 NOT_DATA = ("out", "overwrite")
 # BuildConfig fields naming files read: in the identity by absolute path and content digest
 INPUT_FILES = ("source", "annotations", "tokenizer")
-
-
-class BuildCheckError(AssertionError):
-    """A built example breaks one of the must-hold properties."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,114 +104,6 @@ class BuildConfig:
     def format_config(self) -> FormatConfig:
         return FormatConfig(self.representation, self.angle_code, self.individual, self.loss_on,
                             self.target_grasp, 224, self.max_length, self.overflow)
-
-
-# -- inputs -------------------------------------------------------------------------------------
-
-def read_photos(source: pathlib.Path) -> tuple[list, dict[str, pathlib.Path | None]]:
-    """The photos under `source` and {photo id: its image file} (to name it in errors)."""
-    if not source.is_dir():
-        raise FileNotFoundError(f"source folder {source} does not exist")
-    files = cornell.find_photos(source)
-    object_map = cornell.resolve_object_map(source, "auto")
-    photos = [cornell.read_photo(f, object_map=object_map) for f in files]
-    if not photos:
-        raise FileNotFoundError(f"no Cornell-format photos (pcdNNNNr.png with cpos.txt) under {source}")
-    for photo in photos:
-        if len(photo.grasps) == 0:
-            raise ValueError(f"photo {photo.id} under {source} has no grasps (its cpos.txt is empty, missing or all NaN)")
-    return photos, {f.id: f.rgb for f in files}
-
-
-@dataclasses.dataclass(frozen=True)
-class WordSource:
-    """Where the objects' words come from, its file read once: "kosmos_e" or "synthetic" (`path`,
-    its parsed JSON `document` and the sha256 of the bytes read) or "rules" (pixels, no file)."""
-
-    name: str
-    path: pathlib.Path | None = None
-    document: object = None
-    sha256: str | None = None
-
-
-def word_source(source: pathlib.Path, annotations: str | None) -> WordSource:
-    """The --annotations file (a KOSMOS-E file, or a synthetic_meta.json: it has "photos"), else
-    the source's synthetic_meta.json, else rules; without reading the photos."""
-    if annotations is not None:
-        path = pathlib.Path(annotations)
-        if not path.is_file():
-            raise FileNotFoundError(f"annotation file {path} does not exist")
-    else:
-        path = source / "synthetic_meta.json"
-        if not path.is_file():
-            return WordSource("rules")
-    data = path.read_bytes()
-    try:
-        document = json.loads(data)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise AnnotationMismatchError(f"annotation file {path} is not JSON: {error}") from error
-    synthetic = annotations is None or (isinstance(document, dict) and "photos" in document)
-    return WordSource("synthetic" if synthetic else "kosmos_e", path, document, hashlib.sha256(data).hexdigest())
-
-
-def _mismatch(path, message: str) -> AnnotationMismatchError:
-    return AnnotationMismatchError(f"annotation file {path} does not match the photos: {message}")
-
-
-def _kosmos_e(path: pathlib.Path, document, photos) -> dict:
-    if not isinstance(document, dict):
-        raise AnnotationMismatchError(f"{path}: expected a JSON object of photo keys, got {type(document).__name__}")
-    annotations = parse_annotations(document, str(path))
-    words = {}
-    for photo in photos:
-        if photo.id not in annotations:
-            raise _mismatch(path, f"no entry for photo {photo.id}")
-        words[photo.id] = kosmos_e_words.words_from_photo(annotations.attach(photo))
-    return words
-
-
-def _synthetic(path: pathlib.Path, document, photos) -> dict:
-    words = synthetic_words.words_from_document(document, path)
-    for photo in photos:
-        if photo.id not in words:
-            raise _mismatch(path, f"no entry for photo {photo.id}")
-        parts = len(words[photo.id].parts)
-        if parts != len(photo.grasps):
-            raise _mismatch(path, f"photo {photo.id} has {len(photo.grasps)} grasps but {parts} grasp parts")
-    return words
-
-
-def _rules(photos, image_files: dict) -> dict:
-    """Colour words from pixels: {photo id: ObjectWords}.
-
-    A photo whose pixels name no colour gets its colour marked unknown, with the reason (its
-    colour kinds are left out); anything else wrong with a photo is an error naming it and its file."""
-    words = {}
-    for photo in photos:
-        where = f"photo {photo.id} ({image_files.get(photo.id) or 'no image file'})"
-        try:
-            words[photo.id] = rule_words.words_from_pixels(photo.rgb, photo.grasps)
-        except rule_words.NoColourError as error:
-            words[photo.id] = ObjectWords(unknown={"colour": f"{where}: {error}"})
-        except ValueError as error:
-            raise ValueError(f"{where}: {error}") from error
-    return words
-
-
-def object_words(words_from: WordSource, photos, image_files: dict) -> dict:
-    """{photo id: ObjectWords} of every photo."""
-    if words_from.name == "synthetic":
-        return _synthetic(words_from.path, words_from.document, photos)
-    if words_from.name == "kosmos_e":
-        return _kosmos_e(words_from.path, words_from.document, photos)
-    return _rules(photos, image_files)
-
-
-def words_unknown(words: dict) -> dict:
-    """{photo id: {"kinds": [...], "reason": ...}} of the photos whose words mark kinds unknown."""
-    return {photo: {"kinds": sorted(w.unknown), "reason": "; ".join(dict.fromkeys(w.unknown.values()))}
-            for photo, w in sorted(words.items()) if w.unknown}
-
 
 # -- splits and views ---------------------------------------------------------------------------
 
@@ -269,49 +148,6 @@ def split_views(config: BuildConfig, photos, words) -> tuple[dict, dict]:
         views[split] = [made[key] for key in keys if key in made]
         counts[split] = count_views(keys, made, dropped)
     return views, counts
-
-
-# -- checks -------------------------------------------------------------------------------------
-
-_ANGLE_CODE = re.compile(r"a_(-?\d+)\b")
-
-
-def check_example(example, config: FormatConfig) -> None:
-    grasp, size = example.grasp, config.image_size
-    where = f"sample of photos {example.photo_ids} ({example.kind}, {example.part}): "
-    if not (0 <= grasp[0] < size and 0 <= grasp[1] < size):
-        raise BuildCheckError(where + f"target grasp centre ({grasp[0]:.2f}, {grasp[1]:.2f}) outside the {size} image")
-    if config.angle_code:
-        for code in _ANGLE_CODE.findall(example.target_text):
-            if not 0 <= int(code) <= 255:
-                raise BuildCheckError(where + f"angle code {code} outside [0, 255]")
-    parsed = parse_target(example.target_text, example.part, config)
-    if not parsed.ok:
-        raise BuildCheckError(where + f"target {example.target_text!r} does not parse: {parsed.error}")
-    stated = example.grasp_mask
-    if stated[4]:
-        # the code clips at 255, so an angle in the last half bin below pi/2 is one bin off
-        tolerance = math.pi / geometry.ANGLE_BINS if config.angle_code else 0.005
-        if geometry.angle_difference(parsed.grasp[4], grasp[4]) > tolerance + 1e-9:
-            raise BuildCheckError(where + f"target {example.target_text!r} gives angle {parsed.grasp[4]:.4f}, not {grasp[4]:.4f}")
-    if stated[0] and config.representation != "tlbra_patch":
-        # the formatter prints centres clipped to [0, size - 1]
-        expected = np.clip(grasp[:2], 0, size - 1)
-        if np.any(np.abs(parsed.grasp[:2] - expected) > 0.5 + 1e-9):
-            raise BuildCheckError(where + f"target {example.target_text!r} gives centre {parsed.grasp[:2]}, not {grasp[:2]}")
-
-
-def check_separation(ids: dict, protocol: str, split: str) -> dict:
-    """Overlaps of the splits' photo and object ids; an error in the honest protocol."""
-    photos = sorted(set(ids["train"]["photos"]) & set(ids["test"]["photos"]))
-    objects = sorted(set(ids["train"]["objects"]) & set(ids["test"]["objects"]))
-    if protocol == "honest":
-        if photos:
-            raise BuildCheckError(f"test photos {photos[:5]} reach training samples")
-        if split == "object" and objects:
-            raise BuildCheckError(f"test objects {objects[:5]} reach training samples")
-    return {"shared_photos": len(photos), "shared_objects": len(objects)}
-
 
 # -- identity and reuse -------------------------------------------------------------------------
 
@@ -362,7 +198,6 @@ def reused_stats(dataset_dir: pathlib.Path, identity: dict) -> dict:
                               "this build's); rebuild it with --overwrite")
     return {**stored, "reused": True}
 
-
 # -- the build ----------------------------------------------------------------------------------
 
 def _examples(config: BuildConfig, views, single, multi, split, mosaics=None, skipped=None):
@@ -383,33 +218,6 @@ def _token_stats(lengths: list[int]) -> dict:
     values = np.asarray(lengths)
     return {"min": int(values.min()), "mean": round(float(values.mean()), 2), "p95": int(np.percentile(values, 95)),
             "max": int(values.max())}
-
-
-def spot_numbers(count: int, checks: int = SPOT_CHECKS) -> set[int]:
-    """About `checks` example numbers spread over 0..count-1, the first and last included."""
-    if count <= 0:
-        return set()
-    return {int(n) for n in np.linspace(0, count - 1, min(count, checks)).round()}
-
-
-def check_written(dataset_dir: pathlib.Path, examples: dict[str, int], spots: dict[str, dict[int, bytes]]) -> dict:
-    """Re-read a written dataset: each split's example count, its image table, and the images joined
-    to the spot-checked examples against the digests of the images they were made from.
-    Returns {split: distinct images stored}."""
-    found = {}
-    for split, stored in tfds_builders.open_splits(dataset_dir).items():
-        if len(stored) != examples[split]:
-            raise BuildCheckError(f"split {split!r} holds {len(stored)} examples on disk, {examples[split]} were made")
-        if not 0 < len(stored.images) <= len(stored):
-            raise BuildCheckError(f"split {split!r} stores {len(stored.images)} images for {len(stored)} examples")
-        for number, want in spots[split].items():
-            record = stored[number]
-            if image_table.digest(record["image"]) != want:
-                raise BuildCheckError(f"example {number} of split {split!r} ({bytes(record['kind']).decode()}, photos "
-                                      f"{[bytes(p).decode() for p in record['photo_ids']]}) joins image "
-                                      f"{int(record['image_index'])}, not the image it was made from")
-        found[split] = len(stored.images)
-    return found
 
 
 def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dict:
@@ -557,11 +365,10 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
                                        overwrite=config.overwrite, finish=finish)
     return identity_lib.normalised(stats)  # as JSON reads it back, so a reuse returns the same
 
-
 # -- command line -------------------------------------------------------------------------------
 
 def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.data.build", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.dataset.build", description=__doc__.split("\n\n")[0])
     parser.add_argument("--source", required=True, help="Cornell-format folder")
     parser.add_argument("--out", required=True, help="TFDS data_dir to write into")
     parser.add_argument("--protocol", choices=("honest", "paper"), default="honest")

@@ -1,1 +1,0 @@
-"""Storage and loading: TFDS array_record builders (no TensorFlow) and a grain input pipeline."""
