@@ -1,0 +1,34 @@
+"""Next-token cross-entropy and accuracy as sums, so any split of a batch adds up to the whole.
+
+`loss_mask` marks the TARGET tokens themselves (text/layout.py: "the label at position i is
+tokens[i]; the train step shifts"): the logits at position t predict tokens[t + 1], and that
+prediction counts when loss_mask[t + 1]. Position 0 (<s>) is never a target. The mean is taken by
+the caller once, over the loss tokens of the whole global batch.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+
+
+def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> dict[str, jax.Array]:
+    """logits [B, T, V], tokens int [B, T], loss_mask bool [B, T] ->
+    {"loss_sum": float32, "correct": int32, "tokens": int32} over the marked targets."""
+    predicting = logits[:, :-1].astype(jnp.float32)
+    targets = tokens[:, 1:]
+    counted = loss_mask[:, 1:]
+    nll = optax.softmax_cross_entropy_with_integer_labels(predicting, targets)
+    hit = jnp.argmax(predicting, axis=-1) == targets
+    return {
+        "loss_sum": jnp.sum(jnp.where(counted, nll, 0.0)),
+        "correct": jnp.sum(hit & counted, dtype=jnp.int32),
+        "tokens": jnp.sum(counted, dtype=jnp.int32),
+    }
+
+
+def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """Loss and accuracy per counted token (0 for a batch without any)."""
+    count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
+    return {"loss": sums["loss_sum"] / count, "accuracy": sums["correct"] / count}

@@ -1,0 +1,158 @@
+"""The train step and the eval step: pure functions of (state, batch), jitted with explicit shardings.
+
+    train_step = make_train_step(model_config, tx, schedule, mesh, microbatches=4, seed=0)
+    state, metrics = train_step(state, batch)      # state: TrainState on the mesh, donated
+    metrics = make_eval_step(model_config, mesh)(state.params, batch)
+
+A batch is a dict of arrays with the global batch on the leading axis (sharded over data and fsdp):
+image uint8 [B, S, S, 3], tokens int32 [B, L], loss_mask and image_mask bool [B, L], length int32
+[B]; other keys are ignored. The loss is the mean over the loss tokens of the whole global batch:
+each microbatch adds its gradient of the loss SUM, divided once by the global token count, so any
+number of microbatches gives the same update as one. Dropout draws from (seed, step, microbatch)
+only, so a resumed run repeats the masks of the run it resumes. A step whose loss or gradients are
+not all finite returns the state it was given, unchanged, with metrics["finite"] False.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import nnx
+from jax.sharding import Mesh
+
+from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
+from kosmos_jax.models.preprocess import pixels
+from kosmos_jax.models.sharding import constrain, param_shardings
+from kosmos_jax.train.loss import means, token_sums
+from kosmos_jax.train.mesh import batch_sharding, replicated
+from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
+
+BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length")
+_DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
+
+
+def dropout_key(seed: int, step: jax.Array, microbatch: jax.Array) -> jax.Array:
+    """The dropout key of one microbatch of one step: a function of (seed, step, microbatch) only."""
+    base = jax.random.fold_in(jax.random.key(seed), _DROPOUT_STREAM)
+    return jax.random.fold_in(jax.random.fold_in(base, step), microbatch)
+
+
+def rng_state(rest: nnx.State, key: jax.Array) -> nnx.State:
+    """The model's non-parameter state with every RNG stream reseeded from `key` (each stream, and
+    each entry of a stacked stream, its own key; counts at zero). Only shapes of `rest` are read."""
+    variables, treedef = jax.tree.flatten(rest, is_leaf=lambda x: isinstance(x, nnx.Variable))
+
+    def reseeded(index, var):
+        if isinstance(var, nnx.RngKey):
+            keys = jax.random.split(jax.random.fold_in(key, index), max(1, math.prod(var.shape)))
+            return var.replace(keys.reshape(var.shape))
+        if isinstance(var, nnx.RngCount):
+            return var.replace(jnp.zeros(var.shape, var.dtype))
+        raise TypeError(f"model state {type(var).__name__} is neither a parameter nor an RNG stream; "
+                        "the train step does not carry it")
+
+    return jax.tree.unflatten(treedef, [reseeded(i, var) for i, var in enumerate(variables)])
+
+
+def logits(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
+    """The model's logits [B, L, V] for a batch of stored examples (images as the processor prepares them)."""
+    attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
+    images = pixels(batch["image"], model.config.vision.image_size)
+    return model(batch["tokens"], attention_mask, batch["image_mask"], pixels=images)
+
+
+def split_microbatches(batch: dict[str, jax.Array], microbatches: int) -> dict[str, jax.Array]:
+    """[B, ...] -> [microbatches, B / microbatches, ...], microbatch m holding rows m, m + M, ...:
+    with B sharded in contiguous blocks, each device's rows of every microbatch are its own."""
+
+    def split(x):
+        if x.shape[0] % microbatches:
+            raise ValueError(f"batch of {x.shape[0]} does not split into {microbatches} microbatches")
+        x = x.reshape(x.shape[0] // microbatches, microbatches, *x.shape[1:]).swapaxes(0, 1)
+        return constrain(x, (None, "batch") + (None,) * (x.ndim - 2))
+
+    return jax.tree.map(split, batch)
+
+
+def _all_finite(tree) -> jax.Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+
+
+def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
+                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0) -> Callable:
+    """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
+
+    metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
+    (of this update), grad_norm (before clipping), update_norm, param_norm (after), tokens (loss
+    tokens of the global batch), finite.
+    """
+    graphdef, _, rest = split_model(abstract_model(model_config))
+    state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
+
+    def loss_sum(params, batch, key):
+        model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
+        sums = token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
+        return sums["loss_sum"], sums
+
+    def accumulate(params, step, parts):
+        def add(carry, indexed):
+            index, part = indexed
+            grads, sums = jax.grad(loss_sum, has_aux=True)(params, part, dropout_key(seed, step, index))
+            grads = jax.lax.with_sharding_constraint(grads, state_sharding.params)
+            return jax.tree.map(jnp.add, carry, (grads, sums)), None
+
+        zero_sums = {"loss_sum": jnp.zeros((), jnp.float32), "correct": jnp.zeros((), jnp.int32),
+                     "tokens": jnp.zeros((), jnp.int32)}
+        zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
+        (grads, sums), _ = jax.lax.scan(add, zero, (jnp.arange(microbatches), parts))
+        return grads, sums
+
+    def update(state, grads):
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        return TrainState(params, opt_state, state.step + 1), optax.tree.norm(updates)
+
+    def skip(state, grads):  # a non-finite step: the caller raises, the last good state untouched
+        return state, jnp.zeros((), jnp.float32)
+
+    def train_step(state: TrainState, batch):
+        with jax.sharding.use_abstract_mesh(mesh.abstract_mesh):
+            parts = split_microbatches({key: batch[key] for key in BATCH_KEYS}, microbatches)
+            grad_sum, sums = accumulate(state.params, state.step, parts)
+            count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
+            grads = jax.tree.map(lambda g: g / count, grad_sum)
+            finite = jnp.isfinite(sums["loss_sum"]) & _all_finite(grads)
+            new_state, update_norm = jax.lax.cond(finite, update, skip, state, grads)
+            metrics = {
+                **means(sums),
+                "learning_rate": jnp.asarray(schedule(state.step), jnp.float32),
+                "grad_norm": optax.tree.norm(grads),
+                "update_norm": update_norm,
+                "param_norm": optax.tree.norm(new_state.params),
+                "tokens": sums["tokens"],
+                "finite": finite,
+            }
+        return new_state, metrics
+
+    return jax.jit(train_step, in_shardings=(state_sharding, batch_sharding(mesh)),
+                   out_shardings=(state_sharding, replicated(mesh)), donate_argnums=0)
+
+
+def make_eval_step(model_config: Kosmos2Config, mesh: Mesh) -> Callable:
+    """`eval_step(params, batch) -> metrics`: loss and next-token accuracy without dropout, and the
+    sums (loss_sum, correct, tokens) to pool batches by, as replicated scalars."""
+    graphdef, params, rest = split_model(abstract_model(model_config))
+
+    def eval_step(params, batch):
+        with jax.sharding.use_abstract_mesh(mesh.abstract_mesh):
+            model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, jax.random.key(0))), deterministic=True)
+            sums = token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
+        return {**sums, **means(sums)}
+
+    return jax.jit(eval_step, in_shardings=(param_shardings(params, mesh), batch_sharding(mesh)),
+                   out_shardings=replicated(mesh))

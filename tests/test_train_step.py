@@ -1,0 +1,287 @@
+"""The training step on the tiny model: optimiser, loss normalisation, accumulation, non-finite
+steps, dropout keys, and the same losses on a (data 2, fsdp 2, tensor 2) mesh as on one device."""
+
+import dataclasses
+import functools
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+import pytest
+from flax import nnx
+from jax.sharding import PartitionSpec
+
+from kosmos_jax.models import config as model_config
+from kosmos_jax.models import kosmos2
+from kosmos_jax.models.layers import LayerNorm, dense
+from kosmos_jax.models.preprocess import pixels
+from kosmos_jax.train import loss, mesh, optimizer, state, step
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TINY = model_config.TINY
+NO_DROPOUT = TINY.replace(text=dataclasses.replace(TINY.text, dropout=0.0, attention_dropout=0.0))
+BATCH, LENGTH = 8, 24
+PROMPT = 3 + TINY.latent_query_num  # <s> <image> slots </image>
+# Adam's eps for the exact comparisons: the first step lr * g / (|g| + eps) is then nearly linear in
+# the gradient, so they see the accumulated gradients' rounding; at eps 1e-6, g / |g| blows the
+# rounding of a near-zero gradient up to a whole step
+LINEAR_EPS = 1.0
+
+
+def _opt_config(**changes):
+    values = dict(name="adamw", peak_lr=1e-2, end_lr=0.0, warmup_steps=0, decay_steps=None, b1=0.9, b2=0.98,
+                  eps=1e-6, weight_decay=0.01, clip_norm=1.0)
+    return ml_collections.ConfigDict({**values, **changes})
+
+
+def _batch(seed=0, loss_tokens=None):
+    """Random text after the image prompt as text/layout.py lays it out; `loss_tokens` [B]: how many
+    tokens at the end of each row's text are targets (default: all text tokens)."""
+    rng = np.random.default_rng(seed)
+    length = rng.integers(PROMPT + 8, LENGTH + 1, BATCH).astype(np.int32)
+    position = np.arange(LENGTH)[None, :]
+    real = position < length[:, None]
+    tokens = np.where(real, rng.integers(4, TINY.text.vocab_size, (BATCH, LENGTH)), TINY.text.pad_token_id)
+    first_target = PROMPT if loss_tokens is None else length - np.asarray(loss_tokens)
+    image_mask = np.zeros((BATCH, LENGTH), bool)
+    image_mask[:, 2:2 + TINY.latent_query_num] = True
+    return {
+        "image": rng.integers(0, 256, (BATCH, 224, 224, 3), np.uint8),
+        "tokens": tokens.astype(np.int32),
+        "loss_mask": real & (position >= np.asarray(first_target).reshape(-1, 1)),
+        "image_mask": image_mask,
+        "length": length,
+        "grasp": np.zeros((BATCH, 5), np.float32),  # other features of the pipeline's batch ride along
+    }
+
+
+@functools.lru_cache(maxsize=None)
+def _model(cfg):
+    return kosmos2.build(cfg)
+
+
+@functools.lru_cache(maxsize=None)
+def _params(cfg):
+    _, params, _ = state.split_model(_model(cfg))
+    return jax.device_get(params)
+
+
+@functools.lru_cache(maxsize=None)
+def _train_step(cfg, microbatches, mesh_shape=(1, 1, 1), eps=1e-6):
+    devices = jax.devices()[: int(np.prod(mesh_shape))]
+    on = mesh.make_mesh(*mesh_shape, devices=devices)
+    tx, schedule = optimizer.make_optimizer(_opt_config(eps=eps), total_steps=10)
+    return on, tx, step.make_train_step(cfg, tx, schedule, on, microbatches=microbatches, seed=0)
+
+
+def _fresh_state(cfg, microbatches, mesh_shape=(1, 1, 1), params=None, eps=1e-6):
+    on, tx, train_step = _train_step(cfg, microbatches, mesh_shape, eps)
+    return state.init_train_state(_params(cfg) if params is None else params, tx, on), train_step
+
+
+def _host(tree):
+    return jax.tree.map(np.asarray, jax.device_get(tree))
+
+
+# -- optimiser ------------------------------------------------------------------------------------
+
+def test_schedule_warms_up_then_decays_linearly_to_end_lr():
+    tx, schedule = optimizer.make_optimizer(_opt_config(peak_lr=2e-4, warmup_steps=375, decay_steps=30000), 99)
+    values = [float(schedule(s)) for s in (0, 375 // 2, 375, (375 + 30000) // 2, 30000, 40000)]
+    np.testing.assert_allclose(values, [0.0, 2e-4 * 187 / 375, 2e-4, 2e-4 * (1 - 14812 / 29625), 0.0, 0.0],
+                               rtol=1e-6, atol=1e-12)
+    _, by_total = optimizer.make_optimizer(_opt_config(peak_lr=1.0, warmup_steps=2), total_steps=12)
+    assert float(by_total(7)) == pytest.approx(0.5) and float(by_total(12)) == 0.0
+
+
+def test_decay_mask_spares_norms_biases_and_embeddings():
+    params = _params(TINY)
+    flat = {
+        ".".join(map(str, path)): decays
+        for path, decays in nnx.to_flat_state(optimizer.decay_mask(params, "logical"))
+    }
+    decaying = {name for name, decays in flat.items() if decays}
+    assert "text_model.model.layers.0.ffn.fc1.kernel" in decaying
+    assert "vision_model.model.embeddings.patch_embedding.kernel" in decaying
+    assert "image_to_text_projection.x_attn.q_proj.kernel" in decaying
+    assert all(name.endswith(".kernel") for name in decaying)
+    for spared in ("text_model.model.embed_tokens.embedding", "vision_model.model.embeddings.position_embedding.embedding",
+                   "vision_model.model.embeddings.class_embedding", "image_to_text_projection.latent_query",
+                   "text_model.model.layers.0.self_attn.inner_attn_ln.scale", "text_model.model.layers.0.ffn.fc1.bias"):
+        assert not flat[spared], spared
+    assert jax.tree.leaves(optimizer.decay_mask(params, "path")) == jax.tree.leaves(optimizer.decay_mask(params, "logical"))
+
+
+class _LinearNorm(nnx.Module):
+    def __init__(self, rngs):
+        self.linear = dense(3, 4, ("embed", "mlp"), rngs, std=0.5)
+        self.norm = LayerNorm(4, 1e-5, rngs)
+
+
+def test_update_matches_numpy_adamw_with_clipping_and_masked_decay():
+    params = nnx.state(_LinearNorm(nnx.Rngs(0)), nnx.Param)
+    cfg = _opt_config(peak_lr=0.1, warmup_steps=2, decay_steps=4, eps=1e-3, weight_decay=0.5, clip_norm=0.7)
+    tx, schedule = optimizer.make_optimizer(cfg, total_steps=4)
+    opt_state = tx.init(params)
+    rng = np.random.default_rng(1)
+    p = {"kernel": np.asarray(params["linear"]["kernel"][...]), "bias": np.asarray(params["linear"]["bias"][...])}
+    m = {k: np.zeros_like(v) for k, v in p.items()}
+    v = {k: np.zeros_like(x) for k, x in p.items()}
+    for t in range(1, 4):
+        g = {k: rng.normal(size=x.shape).astype(np.float32) for k, x in p.items()}
+        grads = jax.tree.map(jnp.zeros_like, params)
+        grads["linear"]["kernel"][...] = g["kernel"]
+        grads["linear"]["bias"][...] = g["bias"]
+        updates, opt_state = tx.update(grads, opt_state, params)
+        params = jax.tree.map(lambda a, b: a + b, params, updates)
+        scale = min(1.0, 0.7 / np.sqrt(sum(np.sum(x**2) for x in g.values())))  # norm params' grads are 0
+        lr = 0.1 * min((t - 1) / 2, 1.0) if t - 1 < 2 else 0.1 * (1 - (t - 1 - 2) / 2)
+        for k in p:
+            gk = g[k] * scale
+            m[k] = 0.9 * m[k] + 0.1 * gk
+            v[k] = 0.98 * v[k] + 0.02 * gk**2
+            adam = (m[k] / (1 - 0.9**t)) / (np.sqrt(v[k] / (1 - 0.98**t)) + 1e-3)
+            p[k] = p[k] - lr * (adam + (0.5 * p[k] if k == "kernel" else 0.0))
+        np.testing.assert_allclose(params["linear"]["kernel"][...], p["kernel"], rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(params["linear"]["bias"][...], p["bias"], rtol=1e-5, atol=1e-7)
+        assert float(schedule(t - 1)) == pytest.approx(lr)
+    np.testing.assert_array_equal(params["norm"]["scale"][...], np.ones(4))  # zero grads, no decay
+
+
+# -- loss -----------------------------------------------------------------------------------------
+
+def test_loss_mask_marks_targets_predicted_from_the_previous_position():
+    tokens = jnp.array([[0, 5, 6, 7]])
+    loss_mask = jnp.array([[False, False, True, True]])  # targets 6 and 7
+    logits = jnp.full((1, 4, 9), -10.0).at[0, 1, 6].set(10.0).at[0, 2, 3].set(10.0)  # right, then wrong
+    sums = loss.token_sums(logits, tokens, loss_mask)
+    assert int(sums["tokens"]) == 2 and int(sums["correct"]) == 1
+    log_p = jax.nn.log_softmax(logits[0])
+    assert float(sums["loss_sum"]) == pytest.approx(-float(log_p[1, 6] + log_p[2, 7]), rel=1e-6)
+
+
+def test_loss_is_the_mean_over_loss_tokens_of_the_global_batch():
+    batch = _batch(seed=3, loss_tokens=[1, 2, 3, 4, 5, 6, 7, 8])
+    model = nnx.view(_model(NO_DROPOUT), deterministic=True)
+    attention_mask = np.arange(LENGTH)[None, :] < batch["length"][:, None]
+    logits = np.asarray(kosmos2.forward(model, batch["tokens"], attention_mask, batch["image_mask"],
+                                        pixels=pixels(batch["image"], TINY.vision.image_size)), np.float64)
+    shifted = logits[:, :-1] - logits[:, :-1].max(-1, keepdims=True)
+    log_p = shifted - np.log(np.exp(shifted).sum(-1, keepdims=True))
+    nll = -np.take_along_axis(log_p, batch["tokens"][:, 1:, None], -1)[..., 0]
+    counted = batch["loss_mask"][:, 1:]
+    expected = nll[counted].sum() / counted.sum()
+    assert abs(expected - np.mean([row[c].mean() for row, c in zip(nll, counted)])) > 1e-3  # a different mean
+    hits = (logits[:, :-1].argmax(-1) == batch["tokens"][:, 1:])[counted].mean()
+
+    params = _params(NO_DROPOUT)
+    train_state, train_step = _fresh_state(NO_DROPOUT, microbatches=4, params=params, eps=LINEAR_EPS)
+    _, metrics = train_step(train_state, batch)
+    assert int(metrics["tokens"]) == 36
+    assert float(metrics["loss"]) == pytest.approx(expected, rel=1e-5)
+    assert float(metrics["accuracy"]) == pytest.approx(hits, abs=1e-6)
+    evaluated = step.make_eval_step(NO_DROPOUT, mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1]))(params, batch)
+    assert float(evaluated["loss"]) == pytest.approx(expected, rel=1e-5)
+    assert int(evaluated["tokens"]) == 36 and float(evaluated["loss_sum"]) == pytest.approx(expected * 36, rel=1e-5)
+
+
+# -- the step -------------------------------------------------------------------------------------
+
+def test_steps_lower_the_loss_on_a_fixed_batch():
+    train_state, train_step = _fresh_state(TINY, microbatches=2)
+    batch = _batch()
+    losses = []
+    for _ in range(4):
+        train_state, metrics = train_step(train_state, batch)
+        assert bool(metrics["finite"])
+        losses.append(float(metrics["loss"]))
+    assert losses[-1] < losses[0] - 0.5 and all(b < a for a, b in zip(losses, losses[1:])), losses
+    assert int(train_state.step) == 4
+    assert set(metrics) == {"loss", "accuracy", "learning_rate", "grad_norm", "update_norm", "param_norm", "tokens",
+                            "finite"}
+    assert float(metrics["learning_rate"]) == pytest.approx(1e-2 * (1 - 3 / 10))
+
+
+def test_four_microbatches_of_two_update_as_one_batch_of_eight():
+    batch = _batch(seed=1)
+    after = {}
+    for microbatches in (1, 4):
+        train_state, train_step = _fresh_state(NO_DROPOUT, microbatches, eps=LINEAR_EPS)
+        new_state, metrics = train_step(train_state, batch)
+        after[microbatches] = (_host(new_state.params), float(metrics["loss"]), float(metrics["grad_norm"]))
+    (one, loss_one, norm_one), (four, loss_four, norm_four) = after[1], after[4]
+    assert loss_four == pytest.approx(loss_one, rel=1e-6) and norm_four == pytest.approx(norm_one, rel=1e-5)
+    before = jax.tree.leaves(_params(NO_DROPOUT))
+    for start, a, b in zip(before, jax.tree.leaves(one), jax.tree.leaves(four)):
+        np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-8)
+        np.testing.assert_allclose(b - start, a - start, rtol=1e-3, atol=1e-9)  # the steps themselves
+
+
+def test_non_finite_step_returns_the_state_unchanged():
+    params = jax.tree.map(np.array, _params(NO_DROPOUT))  # writable copies
+    params["text_model"]["model"]["layer_norm"]["scale"][...] = np.full(TINY.text.embed_dim, np.inf, np.float32)
+    train_state, train_step = _fresh_state(NO_DROPOUT, 1, params=params, eps=LINEAR_EPS)
+    before = _host(train_state)
+    new_state, metrics = train_step(train_state, _batch())
+    assert not bool(metrics["finite"]) and not np.isfinite(float(metrics["loss"]))
+    after = _host(new_state)
+    assert int(after.step) == 0
+    for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after)):
+        np.testing.assert_array_equal(b, a)
+
+
+def test_dropout_keys_depend_on_seed_step_and_microbatch_only():
+    keys = {(seed, s, m): jax.random.key_data(step.dropout_key(seed, s, m)).tolist()
+            for seed in (0, 1) for s in (0, 1) for m in (0, 1)}
+    assert len({json.dumps(k) for k in keys.values()}) == 8
+    assert keys[(0, 1, 1)] == jax.random.key_data(step.dropout_key(0, jnp.int32(1), jnp.int32(1))).tolist()
+
+    batch = _batch()
+    losses = []
+    for at_step in (0, 0, 5):
+        train_state, train_step = _fresh_state(TINY, microbatches=2)
+        train_state = train_state._replace(step=jax.device_put(jnp.int32(at_step), train_state.step.sharding))
+        losses.append(float(train_step(train_state, batch)[1]["loss"]))  # the loss before the update: masks only
+    assert losses[0] == losses[1] and losses[2] != losses[0]
+
+
+# -- the mesh -------------------------------------------------------------------------------------
+
+def test_make_mesh_fills_one_axis_with_the_devices_left():
+    assert mesh.mesh_shape((2, -1, 1), 8) == (2, 4, 1)
+    assert mesh.mesh_shape((1, 1, 1), 1) == (1, 1, 1)
+    for bad in ((3, -1, 1), (-1, -1, 1), (2, 2, 1), (0, -1, 1)):
+        with pytest.raises(ValueError):
+            mesh.mesh_shape(bad, 8)
+
+
+def mesh_losses(mesh_shape, steps=3):
+    """Per-step losses of the tiny model (dropout on, 2 microbatches) on a mesh of the first devices,
+    and the shardings of one kernel and of its Adam moment."""
+    train_state, train_step = _fresh_state(TINY, 2, tuple(mesh_shape))
+    kernel = train_state.params["text_model"]["model"]["layers"][0]["self_attn"]["q_proj"]["kernel"]
+    moment = train_state.opt_state[1][0].mu["text_model"]["model"]["layers"][0]["self_attn"]["q_proj"]["kernel"]
+    losses = []
+    for _ in range(steps):
+        train_state, metrics = train_step(train_state, _batch())
+        losses.append(float(metrics["loss"]))
+    return {"losses": losses, "specs": [str(kernel.sharding.spec), str(moment.sharding.spec)]}
+
+
+def test_mesh_of_eight_devices_gives_the_losses_of_one():
+    one = mesh_losses((1, 1, 1))
+    if jax.device_count() >= 8:
+        eight = mesh_losses((2, 2, 2))
+    else:  # XLA_FLAGS came without 8 fake devices: they must be set before jax starts
+        env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=8"}
+        code = "import json, tests.test_train_step as t; print(json.dumps(t.mesh_losses((2, 2, 2))))"
+        done = subprocess.run([sys.executable, "-c", code], env=env, cwd=REPO, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-3000:]
+        eight = json.loads(done.stdout.strip().splitlines()[-1])
+    np.testing.assert_allclose(eight["losses"], one["losses"], rtol=1e-4)
+    assert eight["specs"] == [str(PartitionSpec("fsdp", "tensor"))] * 2
