@@ -10,7 +10,7 @@ WORKERS ?= 2
 # `minor_page_faults_per_step` of benchmarks/model.py. An explicit GLIBC_TUNABLES wins.
 export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1
 
-.PHONY: setup demo test test-slow test-parity bench clean
+.PHONY: setup demo test test-slow test-parity bench plan clean
 
 setup: $(STAMP)
 
@@ -36,6 +36,12 @@ test-parity: setup
 
 bench: setup
 	for b in benchmarks/*.py; do $(PY) $$b || exit 1; done
+
+# The TPU memory plan: the `paper` step compiled for v5e, v4 and v6e slices by libtpu, no TPU attached
+# (kosmos_jax/train/plan.py; minutes a topology on 2 cores).
+plan: setup
+	$(PY) -m pip install --quiet -e '.[tpu]'
+	$(PY) -m kosmos_jax.train.compile --config=configs/kosmos_e.py:paper --plan
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
