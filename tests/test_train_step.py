@@ -207,6 +207,24 @@ def test_steps_lower_the_loss_on_a_fixed_batch():
     assert float(metrics["learning_rate"]) == pytest.approx(1e-2 * (1 - 3 / 10))
 
 
+def test_scanned_rematerialised_bfloat16_model_trains_and_decays_the_same_weights():
+    options = TINY.replace(scan_layers=True, remat=True, compute_dtype="bfloat16")
+    stacked, plain = _params(options), _params(TINY)
+
+    def decaying_size(params):
+        mask = optimizer.decay_mask(params)
+        return sum(np.size(x) for decays, x in zip(jax.tree.leaves(mask), jax.tree.leaves(params)) if decays)
+
+    assert decaying_size(stacked) == decaying_size(plain)
+    train_state, train_step = _fresh_state(options, microbatches=2)
+    losses = []
+    for _ in range(3):
+        train_state, metrics = train_step(train_state, _batch())
+        assert bool(metrics["finite"])
+        losses.append(float(metrics["loss"]))
+    assert losses[-1] < losses[0] - 0.5, losses
+
+
 def test_four_microbatches_of_two_update_as_one_batch_of_eight():
     batch = _batch(seed=1)
     after = {}
