@@ -11,6 +11,10 @@ each microbatch adds its gradient of the loss SUM, divided once by the global to
 number of microbatches gives the same update as one. Dropout draws from (seed, step, microbatch)
 only, so a resumed run repeats the masks of the run it resumes. A step whose loss or gradients are
 not all finite returns the state it was given, unchanged, with metrics["finite"] False.
+
+Each step traces under its mesh (jax.sharding.use_abstract_mesh inside the jitted function, since
+jax.set_mesh is refused inside jit), so the model's `constrain` calls apply without the caller
+setting a mesh, and `.lower()` works for AOT compilation against any devices the mesh holds.
 """
 
 from __future__ import annotations
