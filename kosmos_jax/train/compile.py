@@ -203,7 +203,7 @@ def memory_report(compiled, hbm: int, devices: int) -> dict:
         "hbm_bytes": hbm,
         "fits": memory.total <= hbm,
         "flops_per_device": flops,
-        "flops_per_step": flops * devices,  # replicated work (the optimiser's under pure data parallelism) counted on every device
+        "flops_per_step": flops * devices,  # work replicated over devices counted on each
     }
 
 
@@ -238,19 +238,16 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
     }
     start = time.perf_counter()
     lowered = train_step.lower(state, batch_spec(config, mesh))
-    timing = {"lower_s": round(time.perf_counter() - start, 2)}
+    lower_s = time.perf_counter() - start
     try:
-        compiled = lowered.compile()
+        memory = memory_report(lowered.compile(), hbm_bytes(topology, devices[0]), len(devices))
     except jax.errors.JaxRuntimeError as error:
         overflow = hbm_overflow(str(error))
         if overflow is None:
             raise
-        compiled = None
-    timing["compile_s"] = round(time.perf_counter() - start, 2)  # lowering included
-    if compiled is None:
-        needed, capacity = overflow
-        return {**described, "per_device_total_bytes": needed, "hbm_bytes": capacity, "fits": False, **timing}
-    return {**described, **memory_report(compiled, hbm_bytes(topology, devices[0]), len(devices)), **timing}
+        memory = {"per_device_total_bytes": overflow[0], "hbm_bytes": overflow[1], "fits": False}
+    timing = {"lower_s": round(lower_s, 2), "compile_s": round(time.perf_counter() - start, 2)}  # lowering included
+    return {**described, **memory, **timing}
 
 
 COLUMNS = ("topology", "devices", "mesh d x f x t", "remat", "scan", "batch", "args GiB", "out GiB", "temp GiB",
@@ -266,11 +263,10 @@ def table_row(plan: dict) -> tuple[str, ...]:
 
     mesh = "x".join(str(size) for size in plan["mesh"].values())
     tflops = "-" if plan.get("flops_per_step") is None else f"{plan['flops_per_step'] / 1e12:.1f}"
+    sizes = [gib(f"per_device_{part}_bytes") for part in ("argument", "output", "temp", "total")]
     return (plan["topology"], str(plan["devices"]), mesh, yes(plan["remat"]), yes(plan["scan_layers"]),
-            f"{plan['batch_size']}x{plan['max_length']}", gib("per_device_argument_bytes"),
-            gib("per_device_output_bytes"), gib("per_device_temp_bytes"), gib("per_device_total_bytes"),
-            gib("hbm_bytes"), "yes" if plan["fits"] else "NO", tflops,
-            f"{plan['compile_s']:.0f}")
+            f"{plan['batch_size']}x{plan['max_length']}", *sizes, gib("hbm_bytes"), "yes" if plan["fits"] else "NO",
+            tflops, f"{plan['compile_s']:.0f}")
 
 
 def format_table(plans: Sequence[dict]) -> str:
@@ -288,6 +284,8 @@ JSON = flags.DEFINE_bool("json", False, "print JSON (one object a line) instead 
 
 
 def planned_runs(config: ml_collections.ConfigDict) -> list[tuple[ml_collections.ConfigDict, Topology]]:
+    if PLAN.value and TOPOLOGY.value:
+        raise ValueError("give --topology or --plan, not both")
     if PLAN.value:
         return [(plan.entry_config(config, entry), parse_topology(entry.topology)) for entry in plan.PLAN]
     if TOPOLOGY.value is None:
