@@ -24,10 +24,10 @@ demo: setup
 	$(PY) -m kosmos_jax.demo --config=configs/demo.py
 
 test: setup
-	$(PY) -m pytest -n $(WORKERS) -q
+	$(PY) -m pytest -n $(WORKERS) --dist loadgroup -q
 
 test-slow: setup
-	$(PY) -m pytest -n $(WORKERS) -q -m slow
+	$(PY) -m pytest -n $(WORKERS) --dist loadgroup -q -m slow
 
 # The live comparison with transformers' PyTorch KOSMOS-2 (installs the CPU build of torch, ~1 GB).
 test-parity: setup

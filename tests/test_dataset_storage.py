@@ -190,7 +190,9 @@ def test_batches_shapes_and_padding(written):
     assert batch["answers"].shape == (5, 8, 5)
     dtypes = {name: batch[name].dtype for name in batch}
     assert dtypes == {"image": np.uint8, "tokens": np.int32, "loss_mask": bool, "image_mask": bool, "length": np.int32,
-                      "grasp": np.float32, "grasp_mask": bool, "answers": np.float32, "answers_mask": bool}
+                      "grasp": np.float32, "grasp_mask": bool, "answers": np.float32, "answers_mask": bool,
+                      "example_index": np.int64}
+    assert batch["example_index"].tolist() == list(range(5))
     assert sorted(batch["answers_mask"].sum(axis=1).tolist()) == [1, 2, 3, 4, 5]
     for answers, mask in zip(batch["answers"], batch["answers_mask"]):
         assert np.all(answers[~mask] == 0)
@@ -203,6 +205,10 @@ def test_shuffle_is_seeded_and_shards_partition(written):
     assert order(seed=1) == order(seed=1)
     assert order(seed=1) != order(seed=2)
     assert sorted(order(seed=1)) == list(range(23))
+    # each batch row says which example of the split it is, through the shuffle and the shards
+    for batch in pipeline.make_dataset(source, 4, seed=3, process_index=1, process_count=2):
+        examples = [source.examples[int(i)] for i in batch["example_index"]]
+        assert [int(np.asarray(e["grasp"])[0]) for e in examples] == _ids(batch)
     # every example once, uneven shards, only when asked for
     shards = [order(seed=5, process_index=i, process_count=3, even_shards=False) for i in range(3)]
     assert sorted(sum(shards, [])) == list(range(23))

@@ -17,7 +17,8 @@ single-process evaluation that must see every example). Epochs repeat with a fre
 A batch holds the numeric features only (strings stay in the files): image uint8 [B, S, S, 3],
 tokens int32 [B, L], loss_mask / image_mask bool [B, L], length int32 [B], grasp float32 [B, 5],
 grasp_mask bool [B, 5], answers float32 [B, A, 5] padded to `max_answers` with answers_mask
-bool [B, A].
+bool [B, A], and example_index int64 [B]: each example's position in the split, to name it (its
+photo ids and kind, in `split.examples`) when something goes wrong.
 """
 
 from __future__ import annotations
@@ -32,9 +33,10 @@ NUMERIC_FEATURES = {"image": np.uint8, "tokens": np.int32, "loss_mask": np.bool_
                     "length": np.int32, "grasp": np.float32, "grasp_mask": np.bool_}
 
 
-def to_arrays(record: Mapping[str, Any], max_answers: int) -> dict[str, np.ndarray]:
+def to_arrays(record: Mapping[str, Any], max_answers: int, example_index: int = -1) -> dict[str, np.ndarray]:
     """One stored record -> fixed-shape numpy arrays (answers padded to `max_answers`)."""
     arrays = {name: np.asarray(record[name], dtype) for name, dtype in NUMERIC_FEATURES.items()}
+    arrays["example_index"] = np.int64(example_index)
     answers = np.asarray(record["answers"], np.float32).reshape(-1, 5)
     if answers.shape[0] > max_answers:
         raise ValueError(f"record with {answers.shape[0]} answer grasps exceeds max_answers={max_answers}")
@@ -70,7 +72,7 @@ def make_dataset(
     if len(split.examples) < process_count:
         raise ValueError(f"a split of {len(split.examples)} examples cannot be shared by {process_count} processes")
     images = split.images
-    dataset = grain.MapDataset.source(split.examples)
+    dataset = grain.MapDataset.source(split.examples).map_with_index(lambda index, record: (index, record))
     if shuffle:
         dataset = dataset.shuffle(seed=seed)
     if even_shards:
@@ -78,7 +80,7 @@ def make_dataset(
     dataset = dataset[process_index::process_count]
     if num_epochs != 1:
         dataset = dataset.repeat(num_epochs, reseed_each_epoch=True)
-    dataset = dataset.map(lambda record: to_arrays(images.join(record), max_answers))
+    dataset = dataset.map(lambda indexed: to_arrays(images.join(indexed[1]), max_answers, indexed[0]))
     dataset = dataset.batch(batch_size, drop_remainder=drop_remainder)
     # read_options: grain's read threads and prefetch buffer (its defaults read far ahead)
     return dataset.to_iter_dataset(read_options)

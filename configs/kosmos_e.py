@@ -1,0 +1,146 @@
+"""KOSMOS-E training: one config, variants after the colon.
+
+    python -m kosmos_jax.train --config=configs/kosmos_e.py:tiny --workdir=runs/tiny
+    launch/local.sh train configs/kosmos_e.py:demo --workdir=runs/demo --config.train.steps=500
+    PROCESSES=2 FAKE_DEVICES=2 launch/local.sh train configs/kosmos_e.py:tiny --workdir=runs/mp
+    python -m kosmos_jax.train.compile --config=configs/kosmos_e.py:paper --topology=v5e:2x4
+
+Variants:
+  tiny   transformers' test-sized model, a small synthetic set, seconds a step (the tests use it)
+  demo   what `make demo` trains: a model small enough to learn something in minutes on 2 cores
+  small  the `small` model of kosmos_jax.models.config
+  paper  the KOSMOS-2 size initialised from a KOSMOS-2 folder (config.init_from), the
+         paper's optimiser and its data build (Cornell, individual outputs, angle code, XYA)
+
+config.data.build holds the settings of `python -m kosmos_jax.dataset.build` (kosmos_jax.dataset.build
+.BuildConfig, less source and out). config.data.source is "synthetic" (scenes the project makes:
+config.data.synthetic_photos, config.data.synthetic_seed), "cornell" (../shared/data/cornell) or a
+Cornell-format folder. The trainer builds the dataset under config.data.root on first use and
+reuses an identical build afterwards; config.data.dir names an already built dataset folder instead.
+"""
+
+import dataclasses
+
+import ml_collections
+from ml_collections.config_dict import placeholder
+
+from kosmos_jax.models.config import TextConfig, VisionConfig
+
+VARIANTS = ("tiny", "demo", "small", "paper")
+
+
+def data_config(**changes) -> ml_collections.ConfigDict:
+    data = ml_collections.ConfigDict()
+    data.dir = ""  # an already built dataset folder (holding build_stats.json); "" = build it
+    data.root = "datasets"  # where builds and synthetic scenes are written (relative to the working directory)
+    data.source = "synthetic"
+    data.synthetic_photos = 40
+    data.synthetic_seed = 0
+    data.build = ml_collections.ConfigDict(dict(
+        protocol="honest", split="image", fold=0, folds=5, annotations=placeholder(str), augmentations=4,
+        recipe="random", kinds="non", seed=0, fold_seed=placeholder(int), train_crop=placeholder(str),
+        test_crop=placeholder(str), representation="xya", angle_code=True, individual=True, loss_on="target",
+        target_grasp="random", numbers="digits", max_length=128, overflow="error", tokenizer=placeholder(str),
+        text_pieces=1000, unambiguous=True, batch_size=8,
+    ))
+    data.update(changes.pop("top", {}))
+    data.build.update(changes)
+    return data
+
+
+def size_changes(fields_of, **values) -> ml_collections.ConfigDict:
+    """Every field of a model dataclass, None (= the size's own value) unless given."""
+    types = {"int": int, "float": float, "bool": bool, "str": str}
+    changes = ml_collections.ConfigDict({f.name: placeholder(types[f.type]) for f in dataclasses.fields(fields_of)})
+    changes.update(values)
+    return changes
+
+
+def model_config(size: str, vision: dict | None = None, text: dict | None = None, **changes) -> ml_collections.ConfigDict:
+    model = ml_collections.ConfigDict()
+    model.size = size  # a size of kosmos_jax.models.config: tiny, small, kosmos2
+    model.vision = size_changes(VisionConfig, **(vision or {}))  # e.g. --config.model.vision.image_size=112
+    model.text = size_changes(TextConfig, **(text or {}))  # vocab_size: None = the tokenizer's
+    model.latent_query_num = 64  # must equal the prompt's 64 image slots
+    model.compute_dtype = "float32"
+    model.remat = False
+    model.scan_layers = False
+    model.magneto_init = True
+    model.update(changes)
+    return model
+
+
+def optimizer_config(**changes) -> ml_collections.ConfigDict:
+    optimizer = ml_collections.ConfigDict()
+    optimizer.name = "adamw"
+    optimizer.peak_lr = 1e-3
+    optimizer.end_lr = 0.0
+    optimizer.warmup_steps = 20
+    optimizer.decay_steps = 0  # 0: linear decay reaches end_lr at train.steps
+    optimizer.b1 = 0.9
+    optimizer.b2 = 0.98
+    optimizer.eps = 1e-6
+    optimizer.weight_decay = 0.01
+    optimizer.clip_norm = 1.0  # global-norm clipping; None turns it off
+    optimizer.decay_mask = "logical"  # no decay on parameters whose logical axes are "norm" (LayerNorm), biases, embeddings
+    optimizer.update(changes)
+    return optimizer
+
+
+def train_config(**changes) -> ml_collections.ConfigDict:
+    train = ml_collections.ConfigDict()
+    train.steps = 30
+    train.batch_size = 8  # global, over all processes and devices
+    train.microbatches = 1
+    train.log_every = 1
+    train.eval_every = 0  # 0: only at the end
+    train.eval_batches = 4  # test batches per evaluation (0: the whole test split)
+    train.checkpoint_every = 10
+    train.keep_checkpoints = 3
+    train.seed = 0
+    train.update(changes)
+    return train
+
+
+def mesh_config(data: int = -1, fsdp: int = 1, tensor: int = 1) -> ml_collections.ConfigDict:
+    return ml_collections.ConfigDict(dict(data=data, fsdp=fsdp, tensor=tensor))  # -1 = all devices left
+
+
+def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
+    variant = arg or "tiny"
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r} of configs/kosmos_e.py; expected one of {VARIANTS}")
+    config = ml_collections.ConfigDict()
+    config.variant = variant
+    config.init_from = ""  # a KOSMOS-2 folder (config.json + model.safetensors, read by weights.load_pretrained)
+    config.require_init = False
+    config.mesh = mesh_config()
+    if variant == "tiny":
+        config.data = data_config(top=dict(synthetic_photos=16), augmentations=2, max_length=96, text_pieces=300)
+        config.model = model_config("tiny")
+        config.optimizer = optimizer_config(peak_lr=3e-3, warmup_steps=5)
+        config.train = train_config(steps=30, batch_size=8, checkpoint_every=10)
+    elif variant == "demo":
+        config.data = data_config(top=dict(synthetic_photos=300), augmentations=16)
+        config.model = model_config(
+            "small", vision=dict(hidden_size=128, intermediate_size=512, num_hidden_layers=4, num_attention_heads=4,
+                                 image_size=112, patch_size=14),
+            text=dict(embed_dim=128, ffn_dim=512, layers=4, attention_heads=4))
+        config.optimizer = optimizer_config(peak_lr=1e-3, warmup_steps=100)
+        config.train = train_config(steps=1500, batch_size=32, log_every=10, eval_every=250, checkpoint_every=250)
+    elif variant == "small":
+        config.data = data_config(top=dict(synthetic_photos=300), augmentations=16)
+        config.model = model_config("small")
+        config.optimizer = optimizer_config(peak_lr=5e-4, warmup_steps=100)
+        config.train = train_config(steps=3000, batch_size=16, log_every=10, eval_every=500, checkpoint_every=500)
+    else:  # paper
+        config.data = data_config(top=dict(source="cornell"), augmentations=16, kinds="all", max_length=256,
+                                  representation="xya", angle_code=True, individual=True, loss_on="target",
+                                  annotations="../shared/data/kosmos-e/instructions-original.json")
+        config.model = model_config("kosmos2", compute_dtype="bfloat16")
+        config.require_init = True  # training refuses to start from scratch: give --config.init_from
+        config.optimizer = optimizer_config(peak_lr=2e-4, end_lr=0.0, warmup_steps=375, decay_steps=30_000, b1=0.9,
+                                            b2=0.98, eps=1e-6, weight_decay=0.01, clip_norm=2.0)
+        config.train = train_config(steps=30_000, batch_size=64, log_every=50, eval_every=2000, checkpoint_every=1000)
+        config.mesh = mesh_config(data=1, fsdp=-1, tensor=1)
+    return config

@@ -1,0 +1,92 @@
+"""Checkpoints of a run with orbax: WORKDIR/checkpoints/STEP holds the train state, the data
+iterator's state and the run's description (config, data identity, RNG) as JSON.
+
+The train state goes to orbax as a nested dict of arrays keyed by its tree paths, so a restore
+needs only a target of the same paths (ShapeDtypeStructs with the shardings wanted): a checkpoint
+written on one mesh restores onto any other. Saves are asynchronous; orbax writes each step under
+a temporary name and renames it when complete, so a run killed mid-save resumes from the newest
+complete step.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import jax
+import orbax.checkpoint as ocp
+
+ITEMS = ("state", "data", "run")
+
+
+def _key_name(key) -> str:
+    for attribute in ("name", "key", "idx"):
+        if hasattr(key, attribute):
+            return str(getattr(key, attribute))
+    return str(key)
+
+
+def to_nested(tree) -> dict:
+    """{path part: {...: array}} of every leaf of `tree`."""
+    nested: dict = {}
+    for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+        names = [_key_name(k) for k in path] or ["value"]
+        node = nested
+        for name in names[:-1]:
+            node = node.setdefault(name, {})
+        if names[-1] in node:
+            raise ValueError(f"two leaves of the train state share the path {'/'.join(names)}")
+        node[names[-1]] = leaf
+    return nested
+
+
+def from_nested(nested: dict, like):
+    """A tree shaped like `like` whose leaves are read from `nested` by their paths."""
+    paths, treedef = jax.tree_util.tree_flatten_with_path(like)
+    leaves = []
+    for path, _ in paths:
+        node = nested
+        for name in [_key_name(k) for k in path] or ["value"]:
+            node = node[name]
+        leaves.append(node)
+    return jax.tree_util.tree_unflatten(treedef, leaves)
+
+
+class Checkpoints:
+    """The checkpoints of one workdir."""
+
+    def __init__(self, workdir, keep: int = 3, asynchronous: bool = True):
+        self.directory = pathlib.Path(workdir).resolve() / "checkpoints"
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, enable_async_checkpointing=asynchronous, create=True)
+        self.manager = ocp.CheckpointManager(self.directory, options=options, item_names=ITEMS)
+
+    def latest_step(self) -> int | None:
+        return self.manager.latest_step()
+
+    def all_steps(self) -> list[int]:
+        return list(self.manager.all_steps())
+
+    def save(self, step: int, state, data_state: dict, run: dict) -> None:
+        self.manager.save(step, args=ocp.args.Composite(
+            state=ocp.args.StandardSave(to_nested(state)),
+            data=ocp.args.JsonSave(data_state),
+            run=ocp.args.JsonSave(run)), force=True)
+
+    def restore(self, step: int, abstract_state):
+        """(state, data iterator state, run description) of `step`, the state placed as
+        `abstract_state`'s shardings say."""
+        restored = self.manager.restore(step, args=ocp.args.Composite(
+            state=ocp.args.StandardRestore(to_nested(abstract_state)),
+            data=ocp.args.JsonRestore(),
+            run=ocp.args.JsonRestore()))
+        return from_nested(restored["state"], abstract_state), restored["data"], restored["run"]
+
+    def run_info(self, step: int) -> dict:
+        """The run description stored with `step`, without reading the arrays."""
+        return self.manager.restore(step, args=ocp.args.Composite(run=ocp.args.JsonRestore()))["run"]
+
+    def wait(self) -> None:
+        self.manager.wait_until_finished()
+
+    def close(self) -> None:
+        self.manager.wait_until_finished()
+        self.manager.close()

@@ -1,0 +1,144 @@
+"""The trainer's data: the dataset a config names (built on first use, reused after), and its batches.
+
+`prepare(config.data)` returns the dataset folder and its build statistics: config.data.dir when
+given, else the build of config.data.build from config.data.source ("synthetic": scenes the
+project writes under config.data.root; "cornell": ../shared/data/cornell; or a folder), written
+under config.data.root and reused when an identical build is there. Each process reads the
+batches of its own rows of every global batch (grain shards by process).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import sys
+
+import numpy as np
+
+from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.dataset import build as build_lib
+from kosmos_jax.dataset import pipeline, tfds_builders
+from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+SHARED_CORNELL = REPO.parent / "shared" / "data" / "cornell"
+
+
+@dataclasses.dataclass(frozen=True)
+class Dataset:
+    """A built dataset: its folder, build statistics and tokenizer."""
+
+    dir: pathlib.Path
+    stats: dict
+
+    @property
+    def identity(self) -> dict:
+        return self.stats["identity"]
+
+    @property
+    def tokenizer_path(self) -> pathlib.Path:
+        path = pathlib.Path(self.stats["tokenizer"].get("path") or self.dir / "tokenizer.model")
+        if not path.is_file():
+            raise FileNotFoundError(f"the tokenizer of dataset {self.dir} is missing ({path})")
+        return path
+
+    def tokenizer(self) -> Tokenizer:
+        info = self.stats["tokenizer"]
+        return load_tokenizer(self.tokenizer_path, scheme=info["scheme"], numbers=info["numbers"])
+
+    def splits(self) -> dict:
+        return tfds_builders.open_splits(self.dir)
+
+
+def source_folder(data_config) -> pathlib.Path:
+    """The Cornell-format folder the build reads, writing the synthetic scenes first if asked for."""
+    source = data_config.source
+    if source == "synthetic":
+        folder = pathlib.Path(data_config.root) / f"synthetic-{data_config.synthetic_photos}-seed{data_config.synthetic_seed}"
+        if (folder / scenes.META_NAME).is_file():
+            return folder
+        print(f"writing {data_config.synthetic_photos} synthetic photos to {folder}", file=sys.stderr, flush=True)
+        scenes.write_dataset(folder, photos=data_config.synthetic_photos, seed=data_config.synthetic_seed,
+                             overwrite=True, progress=True)
+        return folder
+    folder = SHARED_CORNELL if source == "cornell" else pathlib.Path(source)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"data source {source!r}: folder {folder} does not exist")
+    return folder
+
+
+def build_config(data_config) -> build_lib.BuildConfig:
+    settings = data_config.build.to_dict()
+    kinds = settings.pop("kinds")
+    settings["kinds"] = tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else kinds
+    for name in ("annotations", "tokenizer"):
+        if settings.get(name):
+            path = pathlib.Path(settings[name])
+            settings[name] = str(path if path.is_absolute() or path.exists() else REPO / path)
+    return build_lib.BuildConfig(source=str(source_folder(data_config)), out=str(data_config.root), **settings)
+
+
+def open_dataset(folder) -> Dataset:
+    folder = pathlib.Path(folder)
+    stats_file = folder / build_lib.STATS_FILE
+    if not stats_file.is_file():
+        raise FileNotFoundError(f"{folder} is not a built dataset (no {build_lib.STATS_FILE}); "
+                                "build one with python -m kosmos_jax.dataset.build or leave config.data.dir empty")
+    return Dataset(folder, json.loads(stats_file.read_text()))
+
+
+def prepare(data_config) -> Dataset:
+    """The dataset of `data_config`, built (or found) on this process's file system."""
+    if data_config.dir:
+        return open_dataset(data_config.dir)
+    stats = build_lib.build(build_config(data_config))
+    print(f"dataset {'reused' if stats.get('reused') else 'built'}: {stats['dataset_dir']}", file=sys.stderr, flush=True)
+    return open_dataset(stats["dataset_dir"])
+
+
+def train_batches(split, global_batch: int, seed: int, process_index: int, process_count: int):
+    """Endless batches of this process's rows of each global batch (an iterator with get_state/set_state)."""
+    if global_batch % process_count:
+        raise ValueError(f"train.batch_size={global_batch} is not divisible by the {process_count} processes")
+    if len(split) < global_batch:
+        raise ValueError(f"the training split has {len(split)} examples, fewer than one batch of {global_batch}")
+    dataset = pipeline.make_dataset(split, global_batch // process_count, seed=seed, process_index=process_index,
+                                    process_count=process_count, num_epochs=None)
+    return iter(dataset)
+
+
+def eval_batches(split, global_batch: int, process_index: int, process_count: int, max_batches: int = 0):
+    """The test split in order, in batches of this process's rows; the last batch padded with rows
+    whose loss mask is empty (they weigh nothing). `max_batches` > 0 stops early."""
+    local = global_batch // process_count
+    dataset = pipeline.make_dataset(split, local, shuffle=False, process_index=process_index,
+                                    process_count=process_count, num_epochs=1, drop_remainder=False)
+    for number, batch in enumerate(dataset):
+        if max_batches and number >= max_batches:
+            return
+        yield pad_rows(batch, local)
+
+
+def pad_rows(batch: dict, rows: int) -> dict:
+    """`batch` with rows repeated up to `rows`, the copies' loss masks emptied."""
+    have = len(batch["tokens"])
+    if have == rows:
+        return batch
+    take = np.arange(rows) % have
+    padded = {name: value[take] for name, value in batch.items()}
+    padded["loss_mask"][have:] = False
+    padded["example_index"][have:] = -1
+    return padded
+
+
+def describe_examples(split, example_index) -> list[str]:
+    """'photo ids (kind)' of each example of a batch, by its example_index."""
+    out = []
+    for index in np.asarray(example_index).tolist():
+        if index < 0:
+            continue
+        record = split.examples[int(index)]
+        photos = [bytes(p).decode() for p in record["photo_ids"]]
+        out.append(f"{'+'.join(photos)} ({bytes(record['kind']).decode()})")
+    return out

@@ -1,0 +1,226 @@
+"""The training loop: a config and a workdir in, checkpoints, metrics and a trained model out.
+
+    train(config, workdir)
+
+Run again on the same workdir, it resumes from the newest complete checkpoint (parameters,
+optimiser state, step, the data iterator's position) and, from there, logs the same per-step losses
+as a run never interrupted; a finished run says so and returns. SIGTERM (a preemption) saves at the
+next step boundary and returns. A step whose loss or gradients are not finite stops the run with
+an error naming the step and the batch's examples; the checkpoints already written stay as they are.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import shutil
+import signal
+import time
+
+import jax
+from flax import nnx
+
+from kosmos_jax.models import config as model_configs
+from kosmos_jax.models import weights
+from kosmos_jax.models.kosmos2 import build
+from kosmos_jax.text import tokens as special
+from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import distributed
+from kosmos_jax.train.checkpoint import Checkpoints
+from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.train.metrics_log import MetricsLog
+from kosmos_jax.train.optimizer import make_optimizer
+from kosmos_jax.train.state import abstract_train_state, init_train_state, split_model
+from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step
+
+RUN_FILE = "run.json"
+TOKENIZER_FILE = "tokenizer.model"
+
+
+class NonFiniteError(FloatingPointError):
+    """A training step gave a loss or gradients that are not finite."""
+
+
+class RunMismatchError(ValueError):
+    """The workdir holds a run of another model or dataset."""
+
+
+def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_configs.Kosmos2Config:  # noqa: F821
+    """The Kosmos2Config a config's `model` section names, with the tokenizer's vocabulary."""
+    base = model_configs.get_config(model.size)
+    given = lambda section: {name: value for name, value in section.to_dict().items() if value is not None}
+    vision = dataclasses.replace(base.vision, **given(model.vision))
+    text = dataclasses.replace(base.text, **{**given(model.text), "vocab_size": vocab_size})
+    if model.latent_query_num != special.IMAGE_SLOTS:
+        raise ValueError(f"model.latent_query_num={model.latent_query_num}: the prompt has {special.IMAGE_SLOTS} image slots")
+    return base.replace(vision=vision, text=text, latent_query_num=model.latent_query_num,
+                        compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
+                        scan_layers=model.scan_layers)
+
+
+def initial_params(config, model_cfg: model_configs.Kosmos2Config):
+    """Fresh parameters, or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
+    if not config.init_from:
+        if config.get("require_init"):
+            raise ValueError(f"the {config.variant} variant starts from KOSMOS-2's weights: give "
+                             "--config.init_from=FOLDER (config.json + model.safetensors)")
+        return split_model(build(model_cfg, config.train.seed))[1]
+    model = weights.load_pretrained(config.init_from, seed=config.train.seed, compute_dtype=model_cfg.compute_dtype,
+                                    remat=model_cfg.remat, scan_layers=model_cfg.scan_layers)
+    if model.config.text.vocab_size < model_cfg.text.vocab_size:
+        raise ValueError(f"{config.init_from}: a vocabulary of {model.config.text.vocab_size} cannot hold the "
+                         f"tokenizer's {model_cfg.text.vocab_size} ids; build the data with KOSMOS-2's tokenizer "
+                         "(--config.data.build.tokenizer=FOLDER/sentencepiece.bpe.model)")
+    return nnx.state(model, nnx.Param)
+
+
+def check_batch_layout(config, mesh) -> None:
+    rows = config.train.batch_size // config.train.microbatches
+    data_devices = mesh.shape["data"] * mesh.shape["fsdp"]
+    if config.train.batch_size % config.train.microbatches or rows % data_devices:
+        raise ValueError(f"train.batch_size={config.train.batch_size} in {config.train.microbatches} microbatches "
+                         f"does not split over the {data_devices} data-parallel devices of mesh {dict(mesh.shape)}")
+
+
+class Preemption:
+    """Remembers a SIGTERM so the loop can stop at a step boundary."""
+
+    def __init__(self):
+        self.requested = False
+        self.previous = signal.signal(signal.SIGTERM, self._handle)
+
+    def _handle(self, signum, frame):
+        self.requested = True
+
+    def restore(self):
+        signal.signal(signal.SIGTERM, self.previous)
+
+
+def prepare_data(data_config) -> data_lib.Dataset:
+    """Process 0 builds (or finds) the dataset first; the others then find the same build."""
+    if jax.process_count() == 1:
+        return data_lib.prepare(data_config)
+    from jax.experimental import multihost_utils
+
+    dataset = data_lib.prepare(data_config) if jax.process_index() == 0 else None
+    multihost_utils.sync_global_devices("kosmos_jax dataset built")
+    return dataset or data_lib.prepare(data_config)
+
+
+def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
+    return {"config": json.loads(config.to_json_best_effort()), "data_identity": dataset.identity,
+            "dataset_dir": str(dataset.dir), "model": model_cfg.to_hf_dict(),
+            "runtime": {"compute_dtype": model_cfg.compute_dtype},
+            "rng": {"seed": config.train.seed, "dropout": "fold_in(fold_in(key(seed), stream), step), per microbatch"}}
+
+
+def check_same_run(stored: dict, current: dict, workdir) -> None:
+    for field, what in (("data_identity", "dataset"), ("model", "model")):
+        if stored.get(field) != current[field]:
+            raise RunMismatchError(f"{workdir} holds a run of another {what} than this config's; "
+                                   "resume it with its own config or use a new --workdir")
+
+
+def evaluate(eval_step, params, split, config, sharding) -> dict:
+    totals = {"loss_sum": 0.0, "correct": 0, "tokens": 0}
+    examples = 0
+    for batch in data_lib.eval_batches(split, config.train.batch_size, jax.process_index(), jax.process_count(),
+                                       config.train.eval_batches):
+        sums = jax.device_get(eval_step(params, distributed.process_batch({k: batch[k] for k in BATCH_KEYS}, sharding)))
+        for key in totals:
+            totals[key] += sums[key].item()
+        examples += int((batch["example_index"] >= 0).sum())
+    tokens = max(totals["tokens"], 1)
+    return {"loss": totals["loss_sum"] / tokens, "accuracy": totals["correct"] / tokens, "tokens": totals["tokens"],
+            "examples_per_process": examples}
+
+
+def train(config, workdir) -> dict:
+    """Train (or resume, or find finished) the run of `config` in `workdir`; returns a summary."""
+    distributed.initialize_from_env()
+    workdir = pathlib.Path(workdir)
+    primary = jax.process_index() == 0
+    steps = config.train.steps
+    checkpoints = Checkpoints(workdir, keep=config.train.keep_checkpoints)
+    latest = checkpoints.latest_step()
+    if latest is not None and latest >= steps:
+        checkpoints.close()
+        if primary:
+            print(f"the run in {workdir} is finished: its newest checkpoint is step {latest} "
+                  f"(train.steps={steps}); nothing to do", flush=True)
+        return {"finished": True, "step": latest, "resumed_from": latest}
+
+    dataset = prepare_data(config.data)
+    tokenizer = dataset.tokenizer()
+    model_cfg = model_config(config.model, tokenizer.vocab_size)
+    mesh = make_mesh(config.mesh.data, config.mesh.fsdp, config.mesh.tensor)
+    check_batch_layout(config, mesh)
+    tx, schedule = make_optimizer(config.optimizer, steps)
+    description = run_description(config, dataset, model_cfg)
+    splits = dataset.splits()
+    batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
+                                     jax.process_index(), jax.process_count())
+    if latest is None:
+        state = init_train_state(initial_params(config, model_cfg), tx, mesh)
+        start = 0
+    else:
+        check_same_run(checkpoints.run_info(latest), description, workdir)
+        state, data_state, _ = checkpoints.restore(latest, abstract_train_state(model_cfg, tx, mesh))
+        batches.set_state(data_state)
+        start = latest
+    if primary:
+        workdir.mkdir(parents=True, exist_ok=True)
+        (workdir / RUN_FILE).write_text(json.dumps(description, indent=1) + "\n")
+        shutil.copyfile(dataset.tokenizer_path, workdir / TOKENIZER_FILE)
+
+    train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
+                                 seed=config.train.seed)
+    eval_step = make_eval_step(model_cfg, mesh)
+    sharding = batch_sharding(mesh)
+    log = MetricsLog(workdir, steps, start, enabled=primary)
+    if start:
+        log.message(f"resuming {workdir} from step {start}")
+    preemption = Preemption()
+    step, stopped = start, None
+    last_end = time.perf_counter()
+    try:
+        while step < steps:
+            before = time.perf_counter()
+            host = next(batches)
+            waited = time.perf_counter() - before
+            state, metrics = train_step(state, distributed.process_batch({k: host[k] for k in BATCH_KEYS}, sharding))
+            metrics = jax.device_get(metrics)
+            step += 1
+            if not metrics["finite"]:
+                examples = data_lib.describe_examples(splits["train"], host["example_index"])
+                raise NonFiniteError(f"step {step}: loss {metrics['loss'].item()} or its gradients are not finite; "
+                                     f"the batch held (this process's rows) {', '.join(examples)}. The state was not "
+                                     f"updated and no checkpoint after step {checkpoints.latest_step()} was written")
+            end = time.perf_counter()
+            step_s, last_end = end - last_end, end
+            if step % config.train.log_every == 0 or step == steps:
+                batch_size = config.train.batch_size
+                log.write({"step": step, "loss": metrics["loss"], "accuracy": metrics["accuracy"],
+                           "learning_rate": metrics["learning_rate"], "grad_norm": metrics["grad_norm"],
+                           "update_norm": metrics["update_norm"], "param_norm": metrics["param_norm"],
+                           "loss_tokens": metrics["tokens"], "step_s": step_s,
+                           "examples_per_s": batch_size / step_s,
+                           "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
+                           "data_wait_fraction": min(1.0, waited / step_s)})
+            if config.train.eval_every and step % config.train.eval_every == 0 and step < steps:
+                log.write({"step": step, "split": "test", **evaluate(eval_step, state.params, splits["test"], config, sharding)})
+            if step % config.train.checkpoint_every == 0 or step == steps or preemption.requested:
+                checkpoints.save(step, state, batches.get_state(), {**description, "step": step})
+            if preemption.requested and step < steps:
+                stopped = "preempted"
+                log.message(f"SIGTERM: saved step {step} in {workdir}; the same command resumes from it")
+                break
+        if stopped is None:
+            log.write({"step": step, "split": "test", **evaluate(eval_step, state.params, splits["test"], config, sharding)})
+    finally:
+        preemption.restore()
+        checkpoints.close()
+        log.close()
+    return {"finished": stopped is None, "step": step, "resumed_from": start, "stopped": stopped}
+
