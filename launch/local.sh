@@ -32,6 +32,8 @@ if [ $# -lt 2 ]; then
 fi
 module=$1; config=$2; shift 2
 repo=$(cd "$(dirname "$0")/.." && pwd)
+# shellcheck source=launch/quote.sh
+. "$repo/launch/quote.sh"
 config_file=${config%%:*}
 if [ ! -f "$repo/$config_file" ]; then
   if [ ! -f "$config_file" ]; then
@@ -62,13 +64,6 @@ if [ -n "${FAKE_DEVICES:-}" ]; then
 fi
 command=("$python" -m "kosmos_jax.${module}" --config="$config" "$@")
 
-quote() {  # the arguments as one line a shell takes back: plain words bare, others in '...'
-  local arg line=""
-  for arg in "$@"; do
-    if [[ $arg =~ ^[][A-Za-z0-9_./:=@%+,-]+$ ]]; then line+="$arg "; else line+="${arg@Q} "; fi
-  done
-  echo "${line% }"
-}
 show() {  # the command line of process $1 ("" for the only one), with the environment it gets
   local name line=""
   for name in "${launch_env[@]}"; do

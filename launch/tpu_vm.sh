@@ -45,15 +45,10 @@ if [ $# -lt 2 ] || [ -z "$name" ] || [ -z "$zone" ]; then
 fi
 module=$1; config=$2; shift 2
 repo=$(cd "$(dirname "$0")/.." && pwd)
+# shellcheck source=launch/quote.sh
+. "$repo/launch/quote.sh"
 dry_run=${DRY_RUN:-0}
 
-quote() {  # the arguments as one line a shell takes back: plain words bare, others in '...'
-  local arg line=""
-  for arg in "$@"; do
-    if [[ $arg =~ ^[][A-Za-z0-9_./:=@%+,-]+$ ]]; then line+="$arg "; else line+="${arg@Q} "; fi
-  done
-  echo "${line% }"
-}
 target=("$name" "--zone=$zone")
 if [ -n "$project" ]; then
   target+=("--project=$project")

