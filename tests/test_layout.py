@@ -19,7 +19,7 @@ LAYERS = (
     ("instruct",),
     ("text",),
     ("dataset",),
-    ("models",),
+    ("models", "baselines"),
     ("train",),
     ("evaluation",),
     ("demo",),
