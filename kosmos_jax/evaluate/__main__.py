@@ -1,0 +1,97 @@
+"""Score a trained run's grasps from its greedy answers, with and without the grasp grammar.
+
+    python -m kosmos_jax.evaluate --workdir=runs/demo [--step=N] [--split=test] [--json]
+        [--batch-size=16] [--max-examples=0]
+    python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
+
+Writes WORKDIR/eval/STEP/results.json, results.md and answers.jsonl (one line per example: both
+answers, whether they parse); another split or a Cornell folder goes to eval/STEP/<split> or
+eval/STEP/cornell-<folder name>. --json prints results.json as one line on stdout; `accuracy` at
+its top level is the constrained accuracy overall, in percent. The split is scored under the
+run's protocol; a Cornell folder under the honest one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import pathlib
+import sys
+import time
+
+from kosmos_jax.evaluate.run import RunError, open_run
+from kosmos_jax.evaluation.cornell_examples import cornell_examples
+from kosmos_jax.evaluation.model_scores import GraspEvaluation
+from kosmos_jax.evaluation.tally import markdown
+from kosmos_jax.train.mesh import make_mesh
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate", description=__doc__.splitlines()[0])
+    parser.add_argument("--workdir", required=True, help="the training run's folder")
+    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
+    parser.add_argument("--split", default="test", help="split of the run's dataset (default: test)")
+    parser.add_argument("--cornell", default=None, help="score every photo of this Cornell-format folder instead")
+    parser.add_argument("--kinds", default="non", help="instruction kinds for --cornell, comma-separated (default: non)")
+    parser.add_argument("--batch-size", type=int, default=16)
+    parser.add_argument("--max-examples", type=int, default=0, help="decode at most this many examples (0: all)")
+    parser.add_argument("--json", action="store_true", help="print results.json as one line on stdout")
+    args = parser.parse_args(argv)
+    if args.batch_size < 1 or args.max_examples < 0:
+        parser.error("--batch-size must be positive and --max-examples at least 0")
+    return args
+
+
+def evaluate(args: argparse.Namespace) -> tuple[dict, list[dict], pathlib.Path]:
+    """(results, one row per example, the folder they belong in)."""
+    started = time.perf_counter()
+    run = open_run(args.workdir)
+    mesh = make_mesh(1, -1, 1)
+    step, params = run.params(args.step, mesh)
+    if args.cornell:
+        kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+        made = cornell_examples(args.cornell, run.tokenizer, run.format_config, kinds)
+        split, label, protocol = made.records, f"cornell-{pathlib.Path(args.cornell).resolve().name}", "honest"
+        source = {"cornell": str(pathlib.Path(args.cornell).resolve()), "kinds": list(kinds), "photos": made.photos,
+                  "views_without_grasps": made.views_without_grasps}
+    else:
+        split, label, protocol = run.split(args.split), args.split, run.protocol
+        source = {"dataset_dir": run.description["dataset_dir"]}
+    evaluation = GraspEvaluation(run.model_config, mesh, split, run.tokenizer, run.format_config, protocol,
+                                 batch_size=args.batch_size, max_examples=args.max_examples)
+    figures, rows = evaluation.results(params)
+    results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
+               "split": label, **source, "representation": run.format_config.representation,
+               "individual": run.format_config.individual, "angle_code": run.format_config.angle_code, **figures,
+               "max_examples": args.max_examples, "batch_size": args.batch_size,
+               "seconds": round(time.perf_counter() - started, 2)}
+    folder = run.workdir / "eval" / str(step)
+    return results, rows, folder if label == "test" else folder / label
+
+
+def write(results: dict, rows: list[dict], folder: pathlib.Path) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    (folder / "results.md").write_text(markdown(results))
+    (folder / "answers.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
+            results, rows, folder = evaluate(args)
+            write(results, rows, folder)
+    except (RunError, FileNotFoundError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(results))
+    else:
+        print(markdown(results) + f"\nwritten to {folder}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,124 @@
+"""A model's grasps on a split, from its decoded answers: prompts -> greedy answers (with and without
+the grammar) -> parses -> one grasp per instruction -> rectangle metric.
+
+    evaluation = GraspEvaluation(model_config, mesh, split, tokenizer, format_config, protocol)
+    evaluation.grasp_accuracy(params)       # percent, constrained (what the trainer logs)
+    results, answers = evaluation.results(params)   # both decodings, per kind and scene
+
+Built once per split: the prompts, the batches (each part's prompts left-padded to one length,
+the last batch filled with copies of its first row, so each part compiles once) and the
+constraints; each call decodes with the parameters it is given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from jax.sharding import Mesh
+
+from kosmos_jax.evaluation import tally
+from kosmos_jax.evaluation.decoding import Decoder
+from kosmos_jax.evaluation.instructions import Instruction, combine, group_instructions, text
+from kosmos_jax.evaluation.prompts import left_padded, prompt
+from kosmos_jax.evaluation.questions import Question, questions
+from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.text.formatter import FormatConfig
+from kosmos_jax.text.tokenizer import Tokenizer
+
+
+def first_instructions(instructions: Sequence[Instruction], max_examples: int) -> list[Instruction]:
+    """The leading instructions whose examples number at most `max_examples` (0: all)."""
+    if not max_examples:
+        return list(instructions)
+    kept, used = [], 0
+    for instruction in instructions:
+        used += len(instruction.examples)
+        if used > max_examples:
+            break
+        kept.append(instruction)
+    return kept
+
+
+class GraspEvaluation:
+    def __init__(self, model_config: Kosmos2Config, mesh: Mesh, split, tokenizer: Tokenizer, config: FormatConfig,
+                 protocol: str, *, batch_size: int = 16, max_examples: int = 0, backend: str = "exact"):
+        """`split`: a StoredSplit, or any sequence of records whose items hold their "image"."""
+        records = getattr(split, "examples", split)
+        self.split, self.config, self.protocol, self.backend = split, config, protocol, backend
+        self.instructions = first_instructions(group_instructions(records), max_examples)
+        if not self.instructions:
+            raise ValueError("no examples to evaluate")
+        asked = questions(tokenizer, config, model_config.text.vocab_size)
+        self.question_of: dict[int, Question] = {}
+        prompts = {}
+        for instruction in self.instructions:
+            for part, index in instruction.examples.items():
+                question = asked[(instruction.answer, part)]
+                self.question_of[index] = question
+                prompts[index] = prompt(records[index], tokenizer, question.prompt.cue)
+        self.batches = []  # (question, example indices, (ids, mask, image mask))
+        for question in dict.fromkeys(self.question_of.values()):
+            indices = [i for i, q in self.question_of.items() if q is question]
+            length = max(len(prompts[i][0]) for i in indices)
+            for start in range(0, len(indices), batch_size):
+                rows = indices[start:start + batch_size]
+                filled = rows + [rows[0]] * (batch_size - len(rows))
+                self.batches.append((question, rows, left_padded([prompts[i] for i in filled], length, tokenizer.pad_id)))
+        self.decoder = Decoder(model_config, mesh)
+
+    @property
+    def examples(self) -> int:
+        return len(self.question_of)
+
+    def answers(self, params, constrained: bool = True) -> dict[int, tuple[str, object]]:
+        """{example index: (answer text, its parse)} of every example, greedy."""
+        out = {}
+        for question, rows, (ids, mask, image_mask) in self.batches:
+            images = np.stack([self.split[i]["image"] for i in rows + [rows[0]] * (len(ids) - len(rows))])
+            constraint = question.prompt.constraint if constrained else None
+            tokens = self.decoder(params, images, ids, mask, image_mask, constraint, question.max_new_tokens)
+            for index, generated in zip(rows, tokens):
+                out[index] = question.parse(generated, self.config)
+        return out
+
+    def grasps(self, answers: Mapping[int, tuple[str, object]]) -> np.ndarray:
+        """[G, 3] (x, y, theta) of every instruction, NaN where an answer did not parse."""
+        return np.stack([combine(instruction, {part: answers[i][1] for part, i in instruction.examples.items()})
+                         for instruction in self.instructions])
+
+    def successes(self, answers) -> np.ndarray:
+        return tally.successes(self.instructions, self.grasps(answers), self.protocol, self.backend)
+
+    def grasp_accuracy(self, params) -> float:
+        """Percent of instructions whose constrained answers make a correct grasp."""
+        return tally.percent(self.successes(self.answers(params)))
+
+    def results(self, params) -> tuple[dict, list[dict]]:
+        """(figures of both decodings, overall and per kind and scene; one row per example with
+        both answers)."""
+        held, free = self.answers(params, constrained=True), self.answers(params, constrained=False)
+        success, free_success = self.successes(held), self.successes(free)
+        free_failed = np.array([sum(not free[i][1].ok for i in inst.examples.values()) for inst in self.instructions])
+
+        def decoding(hits, answers):
+            failures = sum(not parsed.ok for _, parsed in answers.values())
+            return {"accuracy": tally.percent(hits), "correct": int(hits.sum()), "answers": len(answers),
+                    "parse_failures": failures, "parse_failure_rate": tally.percent(
+                        np.array([not parsed.ok for _, parsed in answers.values()]))}
+
+        groups = lambda label: tally.group_figures(self.instructions, success, free_success, free_failed, label)
+        results = {"accuracy": tally.percent(success), "instructions": len(self.instructions),
+                   "examples": self.examples, "protocol": self.protocol, "backend": self.backend,
+                   "wh_policy": tally.WH_POLICY[self.protocol],
+                   "constrained": decoding(success, held), "unconstrained": decoding(free_success, free),
+                   "by_kind": groups(lambda i: i.kind), "by_scene": groups(lambda i: i.scene)}
+        records = getattr(self.split, "examples", self.split)
+        rows = [{"example": index, "kind": instruction.kind, "scene": instruction.scene, "part": part,
+                 "photo_ids": [text(p) for p in records[index]["photo_ids"]],
+                 "instruction": instruction.instruction, "target_text": text(records[index]["target_text"]),
+                 "answer": held[index][0], "answer_parses": held[index][1].ok,
+                 "unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok,
+                 "correct": bool(success[number]), "unconstrained_correct": bool(free_success[number])}
+                for number, instruction in enumerate(self.instructions) for part, index in instruction.examples.items()]
+        return results, rows

@@ -1,0 +1,69 @@
+"""Grasps of instructions -> rectangle-metric successes -> accuracy overall, per kind and per scene,
+each with the number of instructions and of decoded examples behind it; and its Markdown table.
+
+An answer that did not parse is a miss: its grasp is NaN, which the metric never counts as a
+success, and no ground truth ever stands in for it (whatever the protocol).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from kosmos_jax.evaluation.instructions import Instruction
+from kosmos_jax.evaluation.scoring import WH_POLICY
+from kosmos_jax.metrics import grasp_success
+
+
+def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol: str, backend: str = "exact") -> np.ndarray:
+    """bool [G]: does grasp i, (x, y, theta), hit a ground truth of instruction i? w and h follow the
+    protocol (honest: each ground truth's own; paper: the widest opening and the mean jaw)."""
+    if not instructions:
+        return np.zeros(0, bool)
+    width = max(len(i.answers) for i in instructions)
+    gts = np.zeros((len(instructions), width, 5), np.float32)
+    mask = np.zeros((len(instructions), width), bool)
+    for row, instruction in enumerate(instructions):
+        gts[row, :len(instruction.answers)] = instruction.answers
+        mask[row, :len(instruction.answers)] = True
+    found = grasp_success(np.asarray(grasps, np.float32), gts, mask, backend=backend, wh_policy=WH_POLICY[protocol])
+    return np.asarray(found)
+
+
+def percent(hits: np.ndarray) -> float:
+    return round(100.0 * float(np.mean(hits)), 4) if len(hits) else float("nan")
+
+
+def group_figures(instructions: Sequence[Instruction], success: np.ndarray, free_success: np.ndarray,
+                  free_failed: np.ndarray, label) -> dict[str, dict]:
+    """{group: {accuracy, instructions, examples, unconstrained_accuracy, unconstrained_parse_failures}}
+    with `label(instruction)` naming each instruction's group; `free_failed` [G] counts each
+    instruction's unconstrained answers that did not parse."""
+    rows: dict[str, list[int]] = {}
+    for index, instruction in enumerate(instructions):
+        rows.setdefault(label(instruction), []).append(index)
+    return {name: {"accuracy": percent(success[idx]), "instructions": len(idx),
+                   "examples": int(sum(len(instructions[i].examples) for i in idx)),
+                   "unconstrained_accuracy": percent(free_success[idx]),
+                   "unconstrained_parse_failures": int(free_failed[idx].sum())}
+            for name, idx in sorted(rows.items())}
+
+
+def markdown(results: dict) -> str:
+    """The results as a Markdown table: overall, per scene, per kind."""
+    head = (f"Step {results['step']}, {results['split']} ({results['examples']} examples, {results['instructions']} "
+            f"instructions), protocol `{results['protocol']}`, IoU `{results['backend']}`; accuracy in percent, "
+            "a parse failure counts as a miss.\n\n")
+    lines = ["| group | instructions | examples | accuracy (constrained) | accuracy (unconstrained) "
+             "| unconstrained parse failures |", "|---|---:|---:|---:|---:|---:|"]
+    free = results["unconstrained"]
+    overall = {"accuracy": results["accuracy"], "instructions": results["instructions"],
+               "examples": results["examples"], "unconstrained_accuracy": free["accuracy"],
+               "unconstrained_parse_failures": free["parse_failures"]}
+    groups = [("all", overall)] + [(f"scene {k}", v) for k, v in results["by_scene"].items()] \
+        + [(f"kind {k}", v) for k, v in results["by_kind"].items()]
+    for name, g in groups:
+        lines.append(f"| {name} | {g['instructions']} | {g['examples']} | {g['accuracy']:.2f} | "
+                     f"{g['unconstrained_accuracy']:.2f} | {g['unconstrained_parse_failures']} |")
+    return head + "\n".join(lines) + "\n"
