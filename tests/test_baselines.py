@@ -22,6 +22,7 @@ from kosmos_jax.baselines.grconvnet import GRConvNet
 from kosmos_jax.baselines.layers import MODES, GraspMaps, input_channels
 from kosmos_jax.baselines.predict import gaussian_blur, predict_grasps
 from kosmos_jax.baselines.targets import WIDTH_SCALE, grasp_maps
+from kosmos_jax.baselines.transpose import ConvTranspose
 from kosmos_jax.data import cornell, splits
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import views as kosmos_views
@@ -59,7 +60,29 @@ def test_network_gives_four_maps_of_the_input_size(network, mode):
 def test_network_kernels_carry_logical_axes():
     specs = logical_specs(nnx.state(tiny("grconvnet", "rgbd"), nnx.Param))
     assert tuple(specs["conv1"]["kernel"]) == ("patch", "patch", "patch", None)
+    assert tuple(specs["up1"]["kernel"]) == ("patch", "patch", "patch", None)
     assert tuple(specs["bn1"]["scale"]) == ("norm",)
+
+
+def _transposed_reference(x, kernel, stride, padding):
+    """PyTorch's ConvTranspose2d by its definition: y[s i + k - p] += x[i] K[k] on each axis."""
+    batch, height, width, _ = x.shape
+    size = kernel.shape[0]
+    y = np.zeros((batch, stride * height, stride * width, kernel.shape[3]))
+    for i, j, a, b in np.ndindex(height, width, size, size):
+        o, q = stride * i + a - padding, stride * j + b - padding
+        if 0 <= o < stride * height and 0 <= q < stride * width:
+            y[:, o, q] += x[:, i, j] @ kernel[a, b]
+    return y
+
+
+@pytest.mark.parametrize("kernel, stride, padding", [(4, 2, 1), (3, 2, 1), (9, 1, 4), (5, 2, 2), (6, 3, 2)])
+def test_transposed_convolution_is_pytorchs(kernel, stride, padding):
+    layer = ConvTranspose(3, 2, kernel, stride, padding, kernel_init=nnx.initializers.normal(1.0), rngs=nnx.Rngs(0))
+    layer.bias[...] = jnp.asarray([0.5, -1.0])
+    x = np.random.default_rng(0).normal(size=(2, 4, 5, 3)).astype(np.float32)
+    expected = _transposed_reference(x, np.asarray(layer.kernel[...]), stride, padding) + [0.5, -1.0]
+    np.testing.assert_allclose(np.asarray(layer(jnp.asarray(x))), expected, atol=2e-5)
 
 
 @pytest.mark.parametrize("rectangle", RECTANGLES, ids=lambda r: f"theta{r[4]:+.2f}")
@@ -207,9 +230,13 @@ def test_rgbd_views_of_a_synthetic_photo(synthetic_photos):
     np.testing.assert_allclose(views.images[..., :3].mean(axis=(1, 2, 3)), 0.0, atol=1e-5)  # RGB centred
     depth = views.images[..., 3]
     assert depth.min() >= -1.0 and depth.max() <= 1.0 and depth.std() > 0  # depth centred, clipped
-    for mode, channels in MODES.items():
-        one = inputs.make_views(photos[:1], mode, AugmentConfig(), seed=0, photo_index=index, batch_size=1)
-        assert one.images.shape == (1, 224, 224, channels)
+    for mode, channels in MODES.items():  # every mode's channels, normalised the same way
+        stacked = inputs.photo_channels(photos[0], mode)
+        assert stacked.shape == (480, 640, channels)
+        normalised = np.asarray(inputs.normalise(stacked[None], mode))
+        if mode != "rgb":
+            np.testing.assert_allclose(normalised[..., -1], np.clip(stacked[None, ..., -1] - stacked[..., -1].mean(), -1, 1),
+                                       atol=1e-5)
 
 
 def test_depth_moves_with_the_rgb(synthetic_photos):

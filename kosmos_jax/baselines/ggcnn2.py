@@ -6,8 +6,9 @@ IJRR 2020; GG-CNN, RSS 2018), the dilated fully-convolutional net, from the pape
 
 Two 11x11 / 5x5 convolutions (16 filters) and a 2x2 max-pool, two 5x5 convolutions (16) and a
 max-pool, two 5x5 dilated convolutions (32 filters, dilation 2 then 4) that widen the receptive
-field without more pooling, two 3x3 stride-2 transposed convolutions (16) back to full resolution,
-every layer followed by ReLU, and four linear 1x1 heads (quality, cos 2 theta, sin 2 theta, width).
+field without more pooling, two 3x3 stride-2 transposed convolutions (16 filters; PyTorch's padding
+1 and output padding 1, transpose.py) back to full resolution, every layer followed by ReLU, and
+four linear 1x1 heads (quality, cos 2 theta, sin 2 theta, width).
 No normalisation layers. The paper's input is a 300 px depth crop; here any H, W divisible by 4 (224
 views) and 1, 3 or 4 input channels. Trained with the mean squared error (losses.py).
 """

@@ -11,10 +11,12 @@ then 9x9 stride 1: 4c -> 2c -> c -> c), and four 2x2 convolutions give the quali
 sin 2 theta and width maps. Every down or up layer but the last 9x9 has BatchNorm and ReLU; the
 heads are linear. c = 32 in the paper; H must be a multiple of 4 (224 here).
 
-Differences from the public implementation, which change no result: "SAME" padding everywhere, so
-a 224 input gives 224 maps without the odd intermediate sizes (113, 225) the public padding makes
-and the 2x2 heads' valid convolution then trims; no dropout before the heads (an option of the public
-code). Trained with the smooth L1 loss (losses.py).
+Differences from the public implementation, which change no result: "SAME" padding for the
+convolutions and transposed convolutions padded so that stride 2 exactly doubles the size (PyTorch's
+ConvTranspose2d with padding 1, no output padding; transpose.py), so a 224 input gives 224 maps
+without the odd intermediate sizes (113, 225) the public padding makes and the 2x2 heads' valid
+convolution then trims; no dropout before the heads (an option of the public code). Trained with
+the smooth L1 loss (losses.py).
 """
 
 from __future__ import annotations

@@ -13,6 +13,8 @@ from typing import NamedTuple
 import jax
 from flax import nnx
 
+from kosmos_jax.baselines.transpose import ConvTranspose
+
 KERNEL_AXES = {"logical_axes": ("patch", "patch", "patch", None)}
 VECTOR_AXES = {"logical_axes": ("norm",)}
 xavier = nnx.initializers.xavier_uniform()
@@ -37,11 +39,10 @@ def conv(in_features: int, out_features: int, kernel: int, *, rngs: nnx.Rngs, st
 
 
 def conv_transpose(in_features: int, out_features: int, kernel: int, *, rngs: nnx.Rngs,
-                   stride: int = 1) -> nnx.ConvTranspose:
-    """A transposed convolution with "SAME" padding: stride s maps H to s * H exactly."""
-    return nnx.ConvTranspose(in_features, out_features, (kernel, kernel), strides=stride, padding="SAME",
-                             kernel_init=xavier, kernel_metadata=KERNEL_AXES, bias_metadata=VECTOR_AXES,
-                             rngs=rngs)
+                   stride: int = 1) -> ConvTranspose:
+    """A transposed convolution (PyTorch's, padding (kernel - stride + 1) // 2) mapping H to stride * H."""
+    return ConvTranspose(in_features, out_features, kernel, stride, kernel_init=xavier,
+                         kernel_metadata=KERNEL_AXES, bias_metadata=VECTOR_AXES, rngs=rngs)
 
 
 def batch_norm(features: int, *, rngs: nnx.Rngs) -> nnx.BatchNorm:
@@ -51,16 +52,16 @@ def batch_norm(features: int, *, rngs: nnx.Rngs) -> nnx.BatchNorm:
 
 
 class Heads(nnx.Module):
-    """Four one-channel convolutions (quality, cos 2 theta, sin 2 theta, width) over shared features."""
+    """The four output heads (quality, cos 2 theta, sin 2 theta, width) over shared features: one
+    convolution with four output channels, the same function as four one-channel convolutions and
+    one pass over the features instead of four."""
 
     def __init__(self, features: int, kernel: int, *, rngs: nnx.Rngs):
-        self.quality = conv(features, 1, kernel, rngs=rngs)
-        self.cos = conv(features, 1, kernel, rngs=rngs)
-        self.sin = conv(features, 1, kernel, rngs=rngs)
-        self.width = conv(features, 1, kernel, rngs=rngs)
+        self.maps = conv(features, 4, kernel, rngs=rngs)
 
     def __call__(self, x: jax.Array) -> GraspMaps:
-        return GraspMaps(*(head(x)[..., 0] for head in (self.quality, self.cos, self.sin, self.width)))
+        y = self.maps(x)
+        return GraspMaps(*(y[..., i] for i in range(4)))
 
 
 def input_channels(mode: str) -> int:
