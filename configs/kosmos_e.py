@@ -95,6 +95,7 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.log_every = 1
     train.eval_every = 0  # 0: only at the end
     train.eval_batches = 4  # test batches per evaluation (0: the whole test split)
+    train.grasp_eval_every = 0  # grasp accuracy of decoded test answers every N steps (0: only at the end)
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

@@ -20,9 +20,9 @@ LAYERS = (
     ("text",),
     ("dataset",),
     ("models", "baselines"),
+    ("evaluation",),  # above train: the trainer scores decoded grasps; evaluation never imports train
     ("train",),
-    ("evaluation",),
-    ("demo",),
+    ("evaluate", "demo"),
 )
 LEVEL = {name: level for level, names in enumerate(LAYERS) for name in names}
 

@@ -21,10 +21,12 @@ import time
 import jax
 from flax import nnx
 
+from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models import weights
 from kosmos_jax.models.kosmos2 import build
 from kosmos_jax.text import tokens as special
+from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed
 from kosmos_jax.train.checkpoint import Checkpoints
@@ -178,9 +180,20 @@ def train(config, workdir) -> dict:
                                  seed=config.train.seed)
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
+    grasps = GraspEvaluation(model_cfg, mesh, splits["test"], tokenizer, FormatConfig(**dataset.identity["format"]),
+                             dataset.identity["build"]["protocol"])
     log = MetricsLog(workdir, steps, start, enabled=primary)
     if start:
         log.message(f"resuming {workdir} from step {start}")
+
+    def test_record(step, params, with_grasps: bool) -> dict:
+        """Loss and token accuracy on the test split; with the grasp accuracy of decoded answers if asked."""
+        record = {"step": step, "split": "test", **evaluate(eval_step, params, splits["test"], config, sharding)}
+        if with_grasps:
+            record["grasp_accuracy"] = grasps.grasp_accuracy(params)
+            log.message(f"grasp accuracy (test) step {step}: {record['grasp_accuracy']:.2f}%")
+        return record
+
     preemption = Preemption()
     step, stopped = start, None
     last_end = time.perf_counter()
@@ -208,8 +221,9 @@ def train(config, workdir) -> dict:
                            "examples_per_s": batch_size / step_s,
                            "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
                            "data_wait_fraction": min(1.0, waited / step_s)})
-            if config.train.eval_every and step % config.train.eval_every == 0 and step < steps:
-                log.write({"step": step, "split": "test", **evaluate(eval_step, state.params, splits["test"], config, sharding)})
+            grasps_due = bool(config.train.grasp_eval_every) and step % config.train.grasp_eval_every == 0
+            if ((config.train.eval_every and step % config.train.eval_every == 0) or grasps_due) and step < steps:
+                log.write(test_record(step, state.params, grasps_due))
             if step % config.train.checkpoint_every == 0 or step == steps or preemption.requested:
                 checkpoints.save(step, state, batches.get_state(), {**description, "step": step})
             if preemption.requested and step < steps:
@@ -217,7 +231,7 @@ def train(config, workdir) -> dict:
                 log.message(f"SIGTERM: saved step {step} in {workdir}; the same command resumes from it")
                 break
         if stopped is None:
-            log.write({"step": step, "split": "test", **evaluate(eval_step, state.params, splits["test"], config, sharding)})
+            log.write(test_record(step, state.params, with_grasps=True))
     finally:
         preemption.restore()
         checkpoints.close()
