@@ -26,6 +26,9 @@ from kosmos_jax.text.formatter import FormatConfig, format_sample
 from kosmos_jax.text.tokenizer import Tokenizer
 
 
+LONGEST_EXAMPLE = 1024  # tokens
+
+
 @dataclasses.dataclass(frozen=True)
 class CornellExamples:
     records: list[dict]
@@ -53,7 +56,9 @@ def cornell_examples(folder, tokenizer: Tokenizer, config: FormatConfig, kinds: 
     "colour", "multi-name", "all", ...), one target grasp per instruction."""
     views, photos, left_out = honest_views(pathlib.Path(folder), kinds)
     single, multi = samples.parse_kinds(kinds)
-    config = dataclasses.replace(config, target_grasp="first")  # the answers are all the grasps anyway
+    # one target per instruction (the answers are all its grasps anyway); sentences longer than the
+    # run's training length are kept whole: nothing is trained on them
+    config = dataclasses.replace(config, target_grasp="first", max_length=max(config.max_length, LONGEST_EXAMPLE))
     records = [example_record(layout.encode_example(example, tokenizer, config), example)
                for _, sample in samples.split_samples(views, single, multi, seed, "test")
                for example in format_sample(sample, config)]

@@ -1,0 +1,185 @@
+"""Evaluation from decoded answers, end to end on `configs/kosmos_e.py:tiny`: a run the real trainer
+wrote (two steps), its checkpoint decoded, parsed and scored by `python -m kosmos_jax.evaluate`; the
+unconstrained parse failures counted as the parser counts them; constrained answers of a random
+model always parse; the centre and angle answers of one instruction combined into one grasp; the
+errors a user meets; a Cornell-format folder of synthetic photos."""
+
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from kosmos_jax import geometry
+from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.evaluate.__main__ import main
+from kosmos_jax.evaluate.run import open_run
+from kosmos_jax.evaluation.instructions import combine, group_instructions
+from kosmos_jax.evaluation.model_scores import GraspEvaluation
+from kosmos_jax.evaluation.tally import successes
+from kosmos_jax.grasp_text import ParsedGrasp
+from kosmos_jax.models.kosmos2 import abstract_model
+from kosmos_jax.text.formatter import parse_target
+from kosmos_jax.train.mesh import make_mesh
+from kosmos_jax.train.metrics_log import read_metrics
+from kosmos_jax.train.state import split_model
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+def run_module(*args) -> subprocess.CompletedProcess:
+    """`python -m ARGS` as a user runs it, on one CPU device."""
+    env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
+    env.pop("XLA_FLAGS", None)  # conftest's eight fake devices: only slower to compile for
+    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """A tiny run of two steps, written by the trainer."""
+    workdir, root = tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets")
+    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
+                      f"--config.data.root={root}", "--config.train.steps=2", "--config.train.checkpoint_every=2",
+                      "--config.optimizer.warmup_steps=1")
+    assert done.returncode == 0, done.stderr[-3000:]
+    return workdir
+
+
+@pytest.fixture(scope="module")
+def evaluated(workdir):
+    """`python -m kosmos_jax.evaluate --workdir=W --json`: (stdout, results folder)."""
+    done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", "--json")
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout, workdir / "eval" / "2"
+
+
+def test_the_trainer_logs_the_grasp_accuracy_of_its_decoded_answers_at_the_end(workdir):
+    last = [r for r in read_metrics(workdir) if r.get("split") == "test"][-1]
+    assert last["step"] == 2 and 0 <= last["grasp_accuracy"] <= 100
+
+
+def test_a_checkpoint_is_decoded_parsed_and_scored_end_to_end(evaluated):
+    stdout, folder = evaluated
+    assert len(stdout.splitlines()) == 1
+    results = json.loads(stdout)
+    assert results == json.loads((folder / "results.json").read_text())
+    assert 0 <= results["accuracy"] <= 100 and results["accuracy"] == results["constrained"]["accuracy"]
+    assert results["step"] == 2 and results["split"] == "test" and results["protocol"] == "honest"
+    assert results["individual"] and results["examples"] == 2 * results["instructions"] > 0  # location + angle
+    for groups in (results["by_kind"], results["by_scene"]):
+        assert sum(g["examples"] for g in groups.values()) == results["examples"]
+        assert sum(g["instructions"] for g in groups.values()) == results["instructions"]
+    assert set(results["by_scene"]) == {"single"}  # kind NON only: no mosaics
+    assert "| all |" in (folder / "results.md").read_text()
+
+
+def test_the_unconstrained_failures_are_the_answers_the_parser_refuses(evaluated, workdir):
+    stdout, folder = evaluated
+    results = json.loads(stdout)
+    rows = [json.loads(line) for line in (folder / "answers.jsonl").read_text().splitlines()]
+    assert len(rows) == results["examples"]
+    config = open_run(workdir).format_config
+    refused = sum(not parse_target(r["unconstrained_answer"], r["part"], config).ok for r in rows)
+    assert refused == results["unconstrained"]["parse_failures"] == sum(not r["unconstrained_parses"] for r in rows)
+    assert results["unconstrained"]["parse_failure_rate"] == pytest.approx(100 * refused / len(rows), abs=1e-3)
+    assert all(parse_target(r["answer"], r["part"], config).ok for r in rows)
+    assert results["constrained"]["parse_failures"] == 0
+
+
+def redrawn(shapes, seed):
+    """Parameters of these shapes drawn from N(0, 1): logits far larger than trained ones, favouring any token."""
+    rng = np.random.default_rng(seed)
+    return jax.tree.map(lambda x: rng.standard_normal(x.shape).astype(x.dtype), shapes)
+
+
+def test_an_answer_the_grammar_forbids_is_impossible_even_for_a_random_model(workdir):
+    run = open_run(workdir)
+    one_device = make_mesh(1, 1, 1, devices=jax.devices()[:1])
+    evaluation = GraspEvaluation(run.model_config, one_device, run.split("test"), run.tokenizer, run.format_config,
+                                 run.protocol, batch_size=4)
+    shapes = split_model(abstract_model(run.model_config))[1]
+    for seed in (1, 2, 3):
+        answers = evaluation.answers(redrawn(shapes, seed), constrained=True)
+        assert len(answers) == evaluation.examples
+        for index, (text, parsed) in answers.items():
+            assert parsed.ok and parse_target(text, evaluation.question_of[index].part, run.format_config).ok, text
+        assert np.isfinite(evaluation.grasps(answers)).all()
+
+
+def record(part, kind="non", scene="non", instruction="", photo="pcd0100", target_text=""):
+    return {"photo_ids": [photo.encode()], "kind": kind.encode(), "scene": scene.encode(), "part": part.encode(),
+            "instruction": instruction.encode(), "target": 0, "target_text": target_text.encode(),
+            "answers": np.array([[100, 50, 40, 20, 0.3]], np.float32)}
+
+
+def parsed(x=np.nan, y=np.nan, theta=np.nan, ok=True):
+    return ParsedGrasp(ok, np.array([x, y, np.nan, np.nan, theta]), "" if ok else "no answer")
+
+
+def test_the_centre_and_angle_answers_of_one_instruction_make_one_grasp():
+    records = [record("location"), record("angle"), record("location", photo="pcd0101"), record("angle", photo="pcd0101")]
+    first, second = group_instructions(records)
+    assert dict(first.examples) == {"location": 0, "angle": 1} and dict(second.examples) == {"location": 2, "angle": 3}
+    grasp = combine(first, {"location": parsed(100, 50), "angle": parsed(theta=0.3)})
+    np.testing.assert_allclose(grasp, [100, 50, 0.3])
+    assert np.isnan(combine(first, {"location": parsed(100, 50), "angle": parsed(ok=False)})).all()
+    assert np.isnan(combine(first, {"location": parsed(ok=False), "angle": parsed(theta=0.3)})).all()
+    found = successes([first, first], np.array([grasp, [100, 50, 0.3 + np.pi / 2]]), "honest")
+    assert found.tolist() == [True, False]  # the angle of the angle answer decides
+
+
+def test_grouping_follows_the_build_order_and_each_kind_s_answer():
+    # target_grasp="each": the same sample's pairs repeat; an angle instruction has a location only
+    sentence = "Grasp the object with a rotation angle of a_160 radians."
+    records = [record("location"), record("angle"), record("location"), record("angle"),
+               record("location", "angle", "single", sentence), record("grasp", "colour", "multi", "Grasp the red object.")]
+    groups = group_instructions(records)
+    assert [dict(g.examples) for g in groups] == [{"location": 0, "angle": 1}, {"location": 2, "angle": 3},
+                                                 {"location": 4}, {"grasp": 5}]
+    assert [(g.kind, g.scene) for g in groups] == [("non", "single")] * 2 + [("angle", "single"), ("multi-colour", "multi")]
+    np.testing.assert_allclose(combine(groups[2], {"location": parsed(10, 20)}), [10, 20, geometry.decode_angle(160)])
+    np.testing.assert_allclose(combine(groups[3], {"grasp": parsed(10, 20, theta=-0.5)}), [10, 20, -0.5])
+    with pytest.raises(ValueError, match="location"):
+        group_instructions([record("angle")])
+
+
+def run_cli(capsys, *args) -> tuple[int, str, str]:
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_a_workdir_without_checkpoints_or_tokenizer_is_an_error_that_says_so(workdir, tmp_path, capsys):
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for name in ("run.json", "tokenizer.model"):
+        shutil.copy(workdir / name, bare / name)
+    code, out, err = run_cli(capsys, f"--workdir={bare}")
+    assert code == 1 and "no checkpoint" in err and not out
+    (bare / "tokenizer.model").unlink()
+    code, _, err = run_cli(capsys, f"--workdir={bare}")
+    assert code == 1 and "tokenizer.model is missing" in err
+    code, _, err = run_cli(capsys, f"--workdir={tmp_path / 'nothing'}")
+    assert code == 1 and "not a training run" in err
+    code, _, err = run_cli(capsys, f"--workdir={workdir}", "--step=7")
+    assert code == 1 and "no checkpoint of step 7" in err
+    code, _, err = run_cli(capsys, f"--workdir={workdir}", "--split=valid")
+    assert code == 1 and "unknown split 'valid'" in err
+
+
+def test_every_photo_of_a_cornell_folder_is_scored(workdir, tmp_path):
+    folder = tmp_path / "photos"
+    scenes.write_dataset(folder, photos=3, seed=11)
+    done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", f"--cornell={folder}", "--json")
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = json.loads(done.stdout)
+    assert results["split"] == "cornell-photos" and results["protocol"] == "honest" and results["kinds"] == ["non"]
+    assert results["photos"] == 3 and results["instructions"] == 3 - results["views_without_grasps"]
+    assert sum(g["examples"] for g in results["by_kind"].values()) == results["examples"] == 2 * results["instructions"]
+    assert (workdir / "eval" / "2" / "cornell-photos" / "results.json").is_file()
