@@ -202,6 +202,10 @@ def test_one_adam_step_lowers_the_loss(network, mode):
         assert not jax.tree.leaves(rest)
     grasps = family.predict(new_params, new_rest, batch["image"])
     assert grasps.shape == (4, 5) and bool(jnp.all(jnp.isfinite(grasps)))
+    views = inputs.ViewArrays(*(np.asarray(batch[k]) for k in inputs.BATCH_KEYS), list("abcd"), np.zeros(4, int))
+    every = family_lib.predict_views(family, new_params, new_rest, views, batch_size=3)  # a padded last batch
+    np.testing.assert_allclose(every, np.asarray(grasps), atol=1e-4)
+    assert grasp_success(every, batch["grasps"], batch["mask"]).shape == (4,)  # scored by the metric
     # padded evaluation rows count for nothing
     padded = {**batch, "rows": jnp.asarray([0, 1, -1, -1])}
     loss_sum, (eval_sums, same_rest) = family.loss_sums(new_params, new_rest, padded, key, False)
@@ -235,8 +239,8 @@ def test_rgbd_views_of_a_synthetic_photo(synthetic_photos):
         assert stacked.shape == (480, 640, channels)
         normalised = np.asarray(inputs.normalise(stacked[None], mode))
         if mode != "rgb":
-            np.testing.assert_allclose(normalised[..., -1], np.clip(stacked[None, ..., -1] - stacked[..., -1].mean(), -1, 1),
-                                       atol=1e-5)
+            depth = stacked[..., -1]
+            np.testing.assert_allclose(normalised[0, ..., -1], np.clip(depth - depth.mean(), -1, 1), atol=1e-5)
 
 
 def test_depth_moves_with_the_rgb(synthetic_photos):

@@ -3,8 +3,9 @@ gives GR-ConvNet and GG-CNN2 in flax.nnx, their training targets and published l
 predicted grasp per view for the rectangle metric (kosmos_jax.metrics), so both run on KOSMOS-E's folds.
 
 Modules: grconvnet, ggcnn2 (the networks), layers (their convolutions, GraspMaps), transpose (a
-transposed convolution XLA's CPU backend differentiates quickly), targets (maps from rectangles), losses, predict (maps -> one grasp), inputs (photos + fold -> normalised views, batches),
-family (what a trainer needs: init, loss sums, predictions).
+transposed convolution XLA's CPU backend differentiates quickly), targets (maps from rectangles),
+losses, predict (maps -> one grasp), inputs (photos + fold -> normalised views, batches), family
+(what a trainer needs: init, loss sums, predictions).
 
 The public GG-CNN / GR-ConvNet code, as described in its data loaders, grasp utilities and
 evaluation, does the following; each is fixed here, with what the fix changes:

@@ -5,6 +5,7 @@
     (loss_sum, (sums, rest)), grads = jax.value_and_grad(family.loss_sums, has_aux=True)(
         params, rest, batch, key, True)                         # batch: inputs.BATCH_KEYS
     grasps = family.predict(params, rest, batch["image"])       # [B, 5] (x, y, w, h, theta)
+    grasps = predict_views(family, params, rest, views)         # every view of an inputs.ViewArrays
 
 `loss_sums` returns the loss SUMMED over the batch's images, and `sums` holds "loss_sum", "count"
 (images), and each map's summed loss ("quality", "cos", "sin", "width"), so microbatches add up and
@@ -26,10 +27,12 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import nnx
 
 from kosmos_jax.baselines.ggcnn2 import GGCNN2
 from kosmos_jax.baselines.grconvnet import GRConvNet
+from kosmos_jax.baselines.inputs import ViewArrays, eval_batches
 from kosmos_jax.baselines.layers import input_channels
 from kosmos_jax.baselines.losses import NETWORK_LOSS, map_losses
 from kosmos_jax.baselines.predict import predict_grasps
@@ -105,3 +108,13 @@ def make_family(config: BaselineConfig) -> Family:
         return grasps
 
     return Family(config, graphdef, init, loss_sums, predict)
+
+
+def predict_views(family: Family, params, rest, views: ViewArrays, batch_size: int = 8) -> np.ndarray:
+    """[V, 5] grasps of every view, in the views' order (one compiled batch shape; padding dropped)."""
+    predict = jax.jit(family.predict)
+    parts = []
+    for batch in eval_batches(views, batch_size):
+        grasps = np.asarray(predict(params, rest, jnp.asarray(batch["image"])))
+        parts.append(grasps[batch["rows"] >= 0])
+    return np.concatenate(parts)

@@ -104,8 +104,11 @@ class ViewArrays:
 def _crop(images, grasps, mask, keys, config: AugmentConfig):
     """One view a photo: the recipe's crop with no rotation or shift, then its central window."""
     height, width = images.shape[1:3]
-    corners = jax.vmap(lambda key, g, m: affine.crop_corner(key, g, m, (height, width), config.crop_size,
-                                                            config.centre_policy, config.integer_steps))(keys, grasps, mask)
+    def corner(key, g, m):
+        return affine.crop_corner(key, g, m, (height, width), config.crop_size, config.centre_policy,
+                                  config.integer_steps)
+
+    corners = jax.vmap(corner)(keys, grasps, mask)
     zeros = jnp.zeros(corners.shape[:1], jnp.float32)
     matrices = affine.recipe_matrix(corners, zeros, jnp.zeros_like(corners), config.crop_size, config.output_size)
     size = config.output_size
