@@ -11,9 +11,11 @@ it (tests/test_layout.py checks this):
   text          5. grasp text, tokenizers, prompt layout
   dataset       6. the build: views of each protocol, samples, array_record files, grain batches
   models        7. KOSMOS-2 in flax.nnx, weights, constrained decoding
-  train         8. the sharded training step, optimiser, checkpoints, the trainer
-  evaluation    9. scores under both protocols
-  demo          what `make demo` runs
+  baselines     7. GR-ConvNet and GG-CNN2, the paper's baselines, on the same views and folds
+  evaluation    8. scores under both protocols: of the baselines, of a model's decoded answers
+  train         9. the sharded training step, optimiser, checkpoints, the trainer (it scores
+                   decoded grasps with evaluation's code)
+  evaluate, demo  the commands `python -m kosmos_jax.evaluate` and `make demo` run
 """
 
 __version__ = "0.1.0"

@@ -1,2 +1,3 @@
-"""The training stage: takes batches of the dataset stage and a model of models/, gives updated
-parameters, optimiser state and metrics (one jitted, sharded step; AdamW with warm-up and decay)."""
+"""Stage 9, training: batches of the dataset stage and a model of models/ in; updated parameters,
+optimiser state, checkpoints and metrics out (one jitted, sharded step; AdamW with warm-up and decay;
+the trainer, its launchers' set-up, and the TPU memory plan by compilation)."""
