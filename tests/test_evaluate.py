@@ -123,7 +123,8 @@ def parsed(x=np.nan, y=np.nan, theta=np.nan, ok=True):
 
 
 def test_the_centre_and_angle_answers_of_one_instruction_make_one_grasp():
-    records = [record("location"), record("angle"), record("location", photo="pcd0101"), record("angle", photo="pcd0101")]
+    records = [record("location"), record("angle"),
+               record("location", photo="pcd0101"), record("angle", photo="pcd0101")]
     first, second = group_instructions(records)
     assert dict(first.examples) == {"location": 0, "angle": 1} and dict(second.examples) == {"location": 2, "angle": 3}
     grasp = combine(first, {"location": parsed(100, 50), "angle": parsed(theta=0.3)})
@@ -138,11 +139,13 @@ def test_grouping_follows_the_build_order_and_each_kind_s_answer():
     # target_grasp="each": the same sample's pairs repeat; an angle instruction has a location only
     sentence = "Grasp the object with a rotation angle of a_160 radians."
     records = [record("location"), record("angle"), record("location"), record("angle"),
-               record("location", "angle", "single", sentence), record("grasp", "colour", "multi", "Grasp the red object.")]
+               record("location", "angle", "single", sentence),
+               record("grasp", "colour", "multi", "Grasp the red object.")]
     groups = group_instructions(records)
     assert [dict(g.examples) for g in groups] == [{"location": 0, "angle": 1}, {"location": 2, "angle": 3},
                                                  {"location": 4}, {"grasp": 5}]
-    assert [(g.kind, g.scene) for g in groups] == [("non", "single")] * 2 + [("angle", "single"), ("multi-colour", "multi")]
+    assert [(g.kind, g.scene) for g in groups] == [("non", "single"), ("non", "single"), ("angle", "single"),
+                                                 ("multi-colour", "multi")]
     np.testing.assert_allclose(combine(groups[2], {"location": parsed(10, 20)}), [10, 20, geometry.decode_angle(160)])
     np.testing.assert_allclose(combine(groups[3], {"grasp": parsed(10, 20, theta=-0.5)}), [10, 20, -0.5])
     with pytest.raises(ValueError, match="location"):

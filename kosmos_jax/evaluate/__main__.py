@@ -33,7 +33,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
     parser.add_argument("--split", default="test", help="split of the run's dataset (default: test)")
     parser.add_argument("--cornell", default=None, help="score every photo of this Cornell-format folder instead")
-    parser.add_argument("--kinds", default="non", help="instruction kinds for --cornell, comma-separated (default: non)")
+    parser.add_argument("--kinds", default="non",
+                        help="instruction kinds for --cornell, comma-separated, as the build names them (default: non)")
     parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--max-examples", type=int, default=0, help="decode at most this many examples (0: all)")
     parser.add_argument("--json", action="store_true", help="print results.json as one line on stdout")

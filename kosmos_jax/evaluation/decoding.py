@@ -49,8 +49,8 @@ class Decoder:
     def __init__(self, model_config: Kosmos2Config, mesh: Mesh):
         graphdef, _, rest = nnx.split(abstract_model(model_config), nnx.Param, ...)
         self.replicated = NamedSharding(mesh, PartitionSpec())
-        self._jitted = jax.jit(functools.partial(_answers, graphdef, rest), static_argnames=("constraint", "max_new_tokens"),
-                               out_shardings=self.replicated)
+        self._jitted = jax.jit(functools.partial(_answers, graphdef, rest),
+                               static_argnames=("constraint", "max_new_tokens"), out_shardings=self.replicated)
 
     def _global(self, array: np.ndarray) -> jax.Array:
         # every process holds the whole batch: a replicated global array of it

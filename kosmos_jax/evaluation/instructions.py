@@ -55,8 +55,9 @@ def _instruction(records: Sequence[Mapping], parts: dict[str, int]) -> Instructi
                        dict(parts), np.asarray(first["answers"], np.float32).reshape(-1, 5))
     needed = ({"location"},) if made.answer == "centre" else ({"grasp"}, {"location", "angle"})
     if set(parts) not in needed:
+        expected = " or ".join(str(sorted(n)) for n in needed)
         raise ValueError(f"examples {sorted(parts.values())} ({made.kind} instruction {made.instruction!r}) hold the "
-                         f"parts {sorted(parts)}; a {made.answer} answer is {' or '.join(str(sorted(n)) for n in needed)}")
+                         f"parts {sorted(parts)}; a {made.answer} answer is {expected}")
     return made
 
 

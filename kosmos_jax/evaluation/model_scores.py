@@ -46,9 +46,10 @@ class GraspEvaluation:
         """`split`: a StoredSplit, or any sequence of records whose items hold their "image"."""
         records = getattr(split, "examples", split)
         self.split, self.config, self.protocol, self.backend = split, config, protocol, backend
-        self.instructions = first_instructions(group_instructions(records), max_examples)
+        every = group_instructions(records)
+        self.instructions = first_instructions(every, max_examples)
         if not self.instructions:
-            raise ValueError("no examples to evaluate")
+            raise ValueError(f"max_examples={max_examples} holds no whole instruction" if every else "no examples")
         asked = questions(tokenizer, config, model_config.text.vocab_size)
         self.question_of: dict[int, Question] = {}
         prompts = {}
@@ -64,7 +65,8 @@ class GraspEvaluation:
             for start in range(0, len(indices), batch_size):
                 rows = indices[start:start + batch_size]
                 filled = rows + [rows[0]] * (batch_size - len(rows))
-                self.batches.append((question, rows, left_padded([prompts[i] for i in filled], length, tokenizer.pad_id)))
+                padded = left_padded([prompts[i] for i in filled], length, tokenizer.pad_id)
+                self.batches.append((question, rows, padded))
         self.decoder = Decoder(model_config, mesh)
 
     @property

@@ -21,7 +21,8 @@ def answer_value(record: Mapping, cue: str) -> str:
     if not cue:
         return target
     if not target.startswith(cue + " "):
-        raise ValueError(f"target text {target!r} of a {text(record['part'])} example does not start with its cue {cue!r}")
+        raise ValueError(f"target text {target!r} of a {text(record['part'])} example does not start with "
+                         f"its cue {cue!r}")
     return target[len(cue) + 1:]
 
 

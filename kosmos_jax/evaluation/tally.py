@@ -16,7 +16,8 @@ from kosmos_jax.evaluation.scoring import WH_POLICY
 from kosmos_jax.metrics import grasp_success
 
 
-def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol: str, backend: str = "exact") -> np.ndarray:
+def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol: str,
+              backend: str = "exact") -> np.ndarray:
     """bool [G]: does grasp i, (x, y, theta), hit a ground truth of instruction i? w and h follow the
     protocol (honest: each ground truth's own; paper: the widest opening and the mean jaw)."""
     if not instructions:
