@@ -1,4 +1,4 @@
-"""The training state (parameters, optimiser state, step) and its placement on a mesh.
+"""The training state (parameters, optimiser state, step, other model state) and its placement on a mesh.
 
 Parameters are the model's `nnx.Param` variables as an nnx.State; optax's moments copy that tree,
 variables and their `logical_axes` included, so every moment is sharded like its parameter
@@ -7,7 +7,7 @@ through the one rules table (models/sharding.py); optax's scalars (counts) are r
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +24,7 @@ class TrainState(NamedTuple):
     params: nnx.State  # the model's nnx.Param variables
     opt_state: optax.OptState
     step: jax.Array  # int32 scalar: updates applied so far
+    model_state: Any = ()  # variables carried between steps besides parameters (BatchNorm statistics); KOSMOS: none
 
 
 def _is_variable(x) -> bool:

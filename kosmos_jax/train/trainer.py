@@ -7,6 +7,9 @@ optimiser state, step, the data iterator's position) and, from there, logs the s
 as a run never interrupted; a finished run says so and returns. SIGTERM (a preemption) saves at the
 next step boundary and returns. A step whose loss or gradients are not finite stops the run with
 an error naming the step and the batch's examples; the checkpoints already written stay as they are.
+
+What is trained is a Task (train/task.py) chosen by config.task: "kosmos_e" (default, kosmos_task
+below) or "baseline" (GR-ConvNet / GG-CNN2, train/baseline_task.py, configs/baselines.py).
 """
 
 from __future__ import annotations
@@ -29,12 +32,14 @@ from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed
+from kosmos_jax.train.baseline_task import baseline_task
 from kosmos_jax.train.checkpoint import Checkpoints
 from kosmos_jax.train.mesh import batch_sharding, make_mesh
 from kosmos_jax.train.metrics_log import MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state, split_model
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step
+from kosmos_jax.train.task import Task, check_batch_layout
 
 RUN_FILE = "run.json"
 TOKENIZER_FILE = "tokenizer.model"
@@ -75,14 +80,6 @@ def initial_params(config, model_cfg: model_configs.Kosmos2Config):
                          f"tokenizer's {model_cfg.text.vocab_size} ids; build the data with KOSMOS-2's tokenizer "
                          "(--config.data.build.tokenizer=FOLDER/sentencepiece.bpe.model)")
     return nnx.state(model, nnx.Param)
-
-
-def check_batch_layout(config, mesh) -> None:
-    rows = config.train.batch_size // config.train.microbatches
-    data_devices = mesh.shape["data"] * mesh.shape["fsdp"]
-    if config.train.batch_size % config.train.microbatches or rows % data_devices:
-        raise ValueError(f"train.batch_size={config.train.batch_size} in {config.train.microbatches} microbatches "
-                         f"does not split over the {data_devices} data-parallel devices of mesh {dict(mesh.shape)}")
 
 
 class Preemption:
@@ -138,6 +135,62 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
             "examples_per_process": examples}
 
 
+def kosmos_task(config, mesh, tx, schedule) -> Task:
+    """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
+    dataset = prepare_data(config.data)
+    tokenizer = dataset.tokenizer()
+    model_cfg = model_config(config.model, tokenizer.vocab_size)
+    check_batch_layout(config, mesh)
+    description = run_description(config, dataset, model_cfg)
+    splits = dataset.splits()
+    batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
+                                     jax.process_index(), jax.process_count())
+    train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
+                                 seed=config.train.seed)
+    eval_step = make_eval_step(model_cfg, mesh)
+    sharding = batch_sharding(mesh)
+    grasps = GraspEvaluation(model_cfg, mesh, splits["test"], tokenizer, FormatConfig(**dataset.identity["format"]),
+                             dataset.identity["build"]["protocol"])
+
+    def step_record(step, metrics, host, step_s, waited):
+        batch_size = config.train.batch_size
+        return {"step": step, "loss": metrics["loss"], "accuracy": metrics["accuracy"],
+                "learning_rate": metrics["learning_rate"], "grad_norm": metrics["grad_norm"],
+                "update_norm": metrics["update_norm"], "param_norm": metrics["param_norm"],
+                "loss_tokens": metrics["tokens"], "step_s": step_s,
+                "examples_per_s": batch_size / step_s,
+                "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
+                "data_wait_fraction": min(1.0, waited / step_s)}
+
+    def test_record(step, state, with_grasps: bool, log: MetricsLog) -> dict:
+        """Loss and token accuracy on the test split; with the grasp accuracy of decoded answers if asked."""
+        record = {"step": step, "split": "test", **evaluate(eval_step, state.params, splits["test"], config, sharding)}
+        if with_grasps:
+            record["grasp_accuracy"] = grasps.grasp_accuracy(state.params)
+            log.message(f"grasp accuracy (test) step {step}: {record['grasp_accuracy']:.2f}%")
+        return record
+
+    return Task(
+        description=description, batches=batches,
+        init_state=lambda: init_train_state(initial_params(config, model_cfg), tx, mesh),
+        abstract_state=lambda: abstract_train_state(model_cfg, tx, mesh),
+        train_step=lambda state, host: train_step(state, distributed.process_batch(
+            {k: host[k] for k in BATCH_KEYS}, sharding)),
+        step_record=step_record,
+        describe=lambda host: data_lib.describe_examples(splits["train"], host["example_index"]),
+        test_record=test_record,
+        write_files=lambda workdir: shutil.copyfile(dataset.tokenizer_path, workdir / TOKENIZER_FILE))
+
+
+def make_task(config, mesh, tx, schedule) -> Task:
+    kind = config.get("task", "kosmos_e")
+    if kind == "kosmos_e":
+        return kosmos_task(config, mesh, tx, schedule)
+    if kind == "baseline":
+        return baseline_task(config, mesh, tx, schedule)
+    raise ValueError(f"config.task={kind!r}: expected 'kosmos_e' or 'baseline'")
+
+
 def train(config, workdir) -> dict:
     """Train (or resume, or find finished) the run of `config` in `workdir`; returns a summary."""
     distributed.initialize_from_env()
@@ -153,46 +206,26 @@ def train(config, workdir) -> dict:
                   f"(train.steps={steps}); nothing to do", flush=True)
         return {"finished": True, "step": latest, "resumed_from": latest}
 
-    dataset = prepare_data(config.data)
-    tokenizer = dataset.tokenizer()
-    model_cfg = model_config(config.model, tokenizer.vocab_size)
     mesh = make_mesh(config.mesh.data, config.mesh.fsdp, config.mesh.tensor)
-    check_batch_layout(config, mesh)
     tx, schedule = make_optimizer(config.optimizer, steps)
-    description = run_description(config, dataset, model_cfg)
-    splits = dataset.splits()
-    batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
-                                     jax.process_index(), jax.process_count())
+    task = make_task(config, mesh, tx, schedule)
+    batches = task.batches
     if latest is None:
-        state = init_train_state(initial_params(config, model_cfg), tx, mesh)
+        state = task.init_state()
         start = 0
     else:
-        check_same_run(checkpoints.run_info(latest), description, workdir)
-        state, data_state, _ = checkpoints.restore(latest, abstract_train_state(model_cfg, tx, mesh))
+        check_same_run(checkpoints.run_info(latest), task.description, workdir)
+        state, data_state, _ = checkpoints.restore(latest, task.abstract_state())
         batches.set_state(data_state)
         start = latest
     if primary:
         workdir.mkdir(parents=True, exist_ok=True)
-        (workdir / RUN_FILE).write_text(json.dumps(description, indent=1) + "\n")
-        shutil.copyfile(dataset.tokenizer_path, workdir / TOKENIZER_FILE)
+        (workdir / RUN_FILE).write_text(json.dumps(task.description, indent=1) + "\n")
+        task.write_files(workdir)
 
-    train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
-                                 seed=config.train.seed)
-    eval_step = make_eval_step(model_cfg, mesh)
-    sharding = batch_sharding(mesh)
-    grasps = GraspEvaluation(model_cfg, mesh, splits["test"], tokenizer, FormatConfig(**dataset.identity["format"]),
-                             dataset.identity["build"]["protocol"])
     log = MetricsLog(workdir, steps, start, enabled=primary)
     if start:
         log.message(f"resuming {workdir} from step {start}")
-
-    def test_record(step, params, with_grasps: bool) -> dict:
-        """Loss and token accuracy on the test split; with the grasp accuracy of decoded answers if asked."""
-        record = {"step": step, "split": "test", **evaluate(eval_step, params, splits["test"], config, sharding)}
-        if with_grasps:
-            record["grasp_accuracy"] = grasps.grasp_accuracy(params)
-            log.message(f"grasp accuracy (test) step {step}: {record['grasp_accuracy']:.2f}%")
-        return record
 
     preemption = Preemption()
     step, stopped = start, None
@@ -202,39 +235,31 @@ def train(config, workdir) -> dict:
             before = time.perf_counter()
             host = next(batches)
             waited = time.perf_counter() - before
-            state, metrics = train_step(state, distributed.process_batch({k: host[k] for k in BATCH_KEYS}, sharding))
+            state, metrics = task.train_step(state, host)
             metrics = jax.device_get(metrics)
             step += 1
             if not metrics["finite"]:
-                examples = data_lib.describe_examples(splits["train"], host["example_index"])
+                examples = task.describe(host)
                 raise NonFiniteError(f"step {step}: loss {metrics['loss'].item()} or its gradients are not finite; "
                                      f"the batch held (this process's rows) {', '.join(examples)}. The state was not "
                                      f"updated and no checkpoint after step {checkpoints.latest_step()} was written")
             end = time.perf_counter()
             step_s, last_end = end - last_end, end
             if step % config.train.log_every == 0 or step == steps:
-                batch_size = config.train.batch_size
-                log.write({"step": step, "loss": metrics["loss"], "accuracy": metrics["accuracy"],
-                           "learning_rate": metrics["learning_rate"], "grad_norm": metrics["grad_norm"],
-                           "update_norm": metrics["update_norm"], "param_norm": metrics["param_norm"],
-                           "loss_tokens": metrics["tokens"], "step_s": step_s,
-                           "examples_per_s": batch_size / step_s,
-                           "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
-                           "data_wait_fraction": min(1.0, waited / step_s)})
+                log.write(task.step_record(step, metrics, host, step_s, waited))
             grasps_due = bool(config.train.grasp_eval_every) and step % config.train.grasp_eval_every == 0
             if ((config.train.eval_every and step % config.train.eval_every == 0) or grasps_due) and step < steps:
-                log.write(test_record(step, state.params, grasps_due))
+                log.write(task.test_record(step, state, grasps_due, log))
             if step % config.train.checkpoint_every == 0 or step == steps or preemption.requested:
-                checkpoints.save(step, state, batches.get_state(), {**description, "step": step})
+                checkpoints.save(step, state, batches.get_state(), {**task.description, "step": step})
             if preemption.requested and step < steps:
                 stopped = "preempted"
                 log.message(f"SIGTERM: saved step {step} in {workdir}; the same command resumes from it")
                 break
         if stopped is None:
-            log.write(test_record(step, state.params, with_grasps=True))
+            log.write(task.test_record(step, state, True, log))
     finally:
         preemption.restore()
         checkpoints.close()
         log.close()
     return {"finished": stopped is None, "step": step, "resumed_from": start, "stopped": stopped}
-
