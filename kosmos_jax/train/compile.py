@@ -276,21 +276,26 @@ def format_table(plans: Sequence[dict]) -> str:
     return "\n".join([lines[0], "-" * len(lines[0]), *lines[1:]])
 
 
-CONFIG = config_flags.DEFINE_config_file("config", None, "an ml-collections config file (configs/kosmos_e.py:VARIANT)",
-                                         lock_config=True)
-TOPOLOGY = flags.DEFINE_string("topology", None, "cpu:N or a TPU topology such as v5e:2x4, v4:2x2x1, v5e:16x16")
-PLAN = flags.DEFINE_bool("plan", False, "compile for every topology of kosmos_jax/train/plan.py, each with its mesh")
-JSON = flags.DEFINE_bool("json", False, "print JSON (one object a line) instead of the table")
+def define_flags() -> None:
+    """The command's flags, defined only when it runs as a command: a module that defines absl flags
+    on import clashes with any other that does (the demo's --config) in one process."""
+    config_flags.DEFINE_config_file("config", None, "an ml-collections config file (configs/kosmos_e.py:VARIANT)",
+                                    lock_config=True)
+    flags.DEFINE_string("topology", None, "cpu:N or a TPU topology such as v5e:2x4, v4:2x2x1, v5e:16x16")
+    flags.DEFINE_bool("plan", False, "compile for every topology of kosmos_jax/train/plan.py, each with its mesh")
+    flags.DEFINE_bool("json", False, "print JSON (one object a line) instead of the table")
+    flags.mark_flag_as_required("config")
 
 
-def planned_runs(config: ml_collections.ConfigDict) -> list[tuple[ml_collections.ConfigDict, Topology]]:
-    if PLAN.value and TOPOLOGY.value:
+def planned_runs(config: ml_collections.ConfigDict, topology_name: str | None,
+                 every_planned: bool) -> list[tuple[ml_collections.ConfigDict, Topology]]:
+    if every_planned and topology_name:
         raise ValueError("give --topology or --plan, not both")
-    if PLAN.value:
+    if every_planned:
         return [(plan.entry_config(config, entry), parse_topology(entry.topology)) for entry in plan.PLAN]
-    if TOPOLOGY.value is None:
+    if topology_name is None:
         raise ValueError("give --topology (cpu:N or a TPU topology such as v5e:2x4) or --plan")
-    topology = parse_topology(TOPOLOGY.value)
+    topology = parse_topology(topology_name)
     if topology.platform == "cpu":
         jax.config.update("jax_platforms", "cpu")  # not libtpu's client, when the tpu extra is installed
         jax.config.update("jax_num_cpu_devices", topology.device_count)
@@ -299,18 +304,20 @@ def planned_runs(config: ml_collections.ConfigDict) -> list[tuple[ml_collections
 
 def main(argv: Sequence[str]) -> None:
     del argv
+    options = flags.FLAGS
     plans = []
     try:
-        for config, topology in planned_runs(CONFIG.value):
+        for config, topology in planned_runs(options.config, options.topology, options.plan):
             plans.append(compile_plan(config, topology))
-            if JSON.value:
+            jax.clear_caches()  # each paper-sized program holds gigabytes of host memory until dropped
+            if options.json:
                 print(json.dumps(plans[-1]), flush=True)
     except ValueError as error:
         sys.exit(f"compile: {error}")
-    if not JSON.value:
+    if not options.json:
         print(format_table(plans), flush=True)
 
 
 if __name__ == "__main__":
-    flags.mark_flag_as_required("config")
+    define_flags()
     app.run(main)
