@@ -23,9 +23,6 @@ from ml_collections import config_flags
 
 from kosmos_jax.train import distributed
 
-config_flags.DEFINE_config_file("config", None, "accepted and ignored (the trainer's command line works)")
-flags.DEFINE_string("workdir", None, "accepted and ignored")
-
 COLUMNS = 4
 ROWS_PER_DEVICE = 2
 
@@ -64,4 +61,7 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
+    # defined here, not on import: absl flags defined by two imported modules clash
+    config_flags.DEFINE_config_file("config", None, "accepted and ignored (the trainer's command line works)")
+    flags.DEFINE_string("workdir", None, "accepted and ignored")
     app.run(main)
