@@ -158,6 +158,7 @@ class StepMemory:
     alias: int  # outputs written into donated arguments: counted once
     temp: int
     code: int  # the program itself
+    peak: int  # live at once in the TPU compiler's heap simulation (the CPU backend's leaves temporaries out)
 
     @property
     def total(self) -> int:
@@ -167,7 +168,7 @@ class StepMemory:
 def step_memory(compiled) -> StepMemory:
     stats = compiled.memory_analysis()
     return StepMemory(stats.argument_size_in_bytes, stats.output_size_in_bytes, stats.alias_size_in_bytes,
-                      stats.temp_size_in_bytes, stats.generated_code_size_in_bytes)
+                      stats.temp_size_in_bytes, stats.generated_code_size_in_bytes, stats.peak_memory_in_bytes)
 
 
 def compiled_flops(compiled) -> float:
@@ -177,22 +178,37 @@ def compiled_flops(compiled) -> float:
     return float(costs.get("flops", 0.0))
 
 
+def sharded_bytes(tree) -> int:
+    """Bytes one device holds of a tree of ShapeDtypeStructs with shardings (the most loaded device)."""
+    return sum(math.prod(x.sharding.shard_shape(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(tree))
+
+
+_SIZE = r"([\d.]+)([KMGT]?)\S*"
 _UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
-_OUT_OF_HBM = re.compile(r"Ran out of memory in memory space hbm\. Used ([\d.]+)([KMGT]?)\S* of ([\d.]+)([KMGT]?)\S* hbm")
+# The TPU compiler's refusals: (message, what its first figure counts).
+_OUT_OF_HBM = (
+    (re.compile(rf"Ran out of memory in memory space hbm\. Used {_SIZE} of {_SIZE} hbm"), "total"),
+    (re.compile(rf"memory required for HLO temporaries \({_SIZE}\) exceeds available HBM \({_SIZE}\)"), "temp"),
+)
 
 
-def hbm_overflow(message: str) -> tuple[int, int] | None:
-    """(bytes the program needs, bytes a chip offers) from the TPU compiler's out-of-memory error."""
-    found = _OUT_OF_HBM.search(message)
-    if found is None:
-        return None
-    used, used_unit, capacity, capacity_unit = found.groups()
-    return round(float(used) * _UNITS[used_unit]), round(float(capacity) * _UNITS[capacity_unit])
+def hbm_overflow(message: str) -> tuple[str, int, int] | None:
+    """(what the figure counts: "total" or "temp", bytes needed, bytes a chip offers) from the TPU
+    compiler's out-of-memory error; None for any other error."""
+    for pattern, counts in _OUT_OF_HBM:
+        found = pattern.search(message)
+        if found:
+            needed, needed_unit, capacity, capacity_unit = found.groups()
+            return counts, round(float(needed) * _UNITS[needed_unit]), round(float(capacity) * _UNITS[capacity_unit])
+    return None
 
 
-def memory_report(compiled, hbm: int, devices: int) -> dict:
+def memory_report(compiled, topology: Topology, hbm: int) -> dict:
+    """Memory and FLOPs of a compiled step. The TPU compiler refuses a program larger than the chip's
+    usable HBM, so a TPU program that compiled fits; on CPU, the total must fit the share of RAM."""
     memory = step_memory(compiled)
     flops = compiled_flops(compiled)
+    tpu = topology.platform == "tpu"
     return {
         "per_device_argument_bytes": memory.argument,
         "per_device_output_bytes": memory.output,
@@ -200,11 +216,21 @@ def memory_report(compiled, hbm: int, devices: int) -> dict:
         "per_device_temp_bytes": memory.temp,
         "per_device_code_bytes": memory.code,
         "per_device_total_bytes": memory.total,
+        "per_device_peak_bytes": memory.peak if tpu else None,
         "hbm_bytes": hbm,
-        "fits": memory.total <= hbm,
+        "fits": tpu or memory.total <= hbm,
         "flops_per_device": flops,
-        "flops_per_step": flops * devices,  # work replicated over devices counted on each
+        "flops_per_step": flops * topology.device_count,  # work replicated over devices counted on each
     }
+
+
+def refusal_report(overflow: tuple[str, int, int], argument_bytes: int) -> dict:
+    """The report of a program the TPU compiler refused as too large: what it said it needed."""
+    counts, needed, capacity = overflow
+    if counts == "total":
+        return {"per_device_total_bytes": needed, "hbm_bytes": capacity, "fits": False}
+    return {"per_device_argument_bytes": argument_bytes, "per_device_temp_bytes": needed,
+            "per_device_total_bytes": argument_bytes + needed, "hbm_bytes": capacity, "fits": False}
 
 
 def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
@@ -236,22 +262,23 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
         "remat": model_config.remat,
         "scan_layers": model_config.scan_layers,
     }
+    batch = batch_spec(config, mesh)
     start = time.perf_counter()
-    lowered = train_step.lower(state, batch_spec(config, mesh))
+    lowered = train_step.lower(state, batch)
     lower_s = time.perf_counter() - start
     try:
-        memory = memory_report(lowered.compile(), hbm_bytes(topology, devices[0]), len(devices))
+        memory = memory_report(lowered.compile(), topology, hbm_bytes(topology, devices[0]))
     except jax.errors.JaxRuntimeError as error:
         overflow = hbm_overflow(str(error))
         if overflow is None:
             raise
-        memory = {"per_device_total_bytes": overflow[0], "hbm_bytes": overflow[1], "fits": False}
+        memory = refusal_report(overflow, sharded_bytes((state, batch)))
     timing = {"lower_s": round(lower_s, 2), "compile_s": round(time.perf_counter() - start, 2)}  # lowering included
     return {**described, **memory, **timing}
 
 
 COLUMNS = ("topology", "devices", "mesh d x f x t", "remat", "scan", "batch", "args GiB", "out GiB", "temp GiB",
-           "total GiB", "HBM GiB", "fits", "TFLOP/step", "compile s")
+           "total GiB", "peak GiB", "HBM GiB", "fits", "TFLOP/step", "compile s")
 
 
 def table_row(plan: dict) -> tuple[str, ...]:
@@ -263,7 +290,7 @@ def table_row(plan: dict) -> tuple[str, ...]:
 
     mesh = "x".join(str(size) for size in plan["mesh"].values())
     tflops = "-" if plan.get("flops_per_step") is None else f"{plan['flops_per_step'] / 1e12:.1f}"
-    sizes = [gib(f"per_device_{part}_bytes") for part in ("argument", "output", "temp", "total")]
+    sizes = [gib(f"per_device_{part}_bytes") for part in ("argument", "output", "temp", "total", "peak")]
     return (plan["topology"], str(plan["devices"]), mesh, yes(plan["remat"]), yes(plan["scan_layers"]),
             f"{plan['batch_size']}x{plan['max_length']}", *sizes, gib("hbm_bytes"), "yes" if plan["fits"] else "NO",
             tflops, f"{plan['compile_s']:.0f}")
