@@ -65,6 +65,17 @@ def test_the_batch_is_what_the_trainer_feeds_the_step():
     assert all(spec.sharding == batch_sharding(mesh) for spec in batch.values())
 
 
+def test_flops_of_scanned_layers_and_microbatches_are_those_of_the_unrolled_step():
+    # XLA counts a loop's body once: 2 scanned layers or 2 microbatches would halve a naive count.
+    mesh = make_mesh(2, 4, 1)
+    plain = _config("tiny")
+    looped = _config("tiny")
+    looped.model.scan_layers, looped.train.microbatches = True, 2
+    built = train_compile.trainer_step(plain, mesh)
+    flops = train_compile.step_flops(plain, mesh, built.step.lower(built.state, built.batch))
+    assert flops > 0 and train_compile.step_flops(looped, mesh) == flops
+
+
 def test_plan_meshes_use_every_chip_and_split_the_paper_batch():
     paper = _config("paper")
     for entry in plan.PLAN:
@@ -140,7 +151,7 @@ def test_compile_command_on_eight_cpu_devices():
     assert result["per_device_alias_bytes"] > 0.9 * result["per_device_output_bytes"]
     assert result["fits"] is True and result["hbm_bytes"] > result["per_device_total_bytes"]
     assert result["per_device_peak_bytes"] is None  # the CPU backend's peak leaves temporaries out
-    assert result["flops_per_step"] == pytest.approx(8 * result["flops_per_device"]) and result["flops_per_device"] > 0
+    assert result["flops_per_step"] > 0
     assert result["compile_s"] > 0 and (result["batch_size"], result["max_length"]) == (8, 96)
 
 

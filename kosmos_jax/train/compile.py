@@ -21,7 +21,7 @@ import os
 import re
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +35,7 @@ from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE
 from kosmos_jax.train import plan, trainer
 from kosmos_jax.train.mesh import batch_sharding, make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
-from kosmos_jax.train.state import abstract_train_state
+from kosmos_jax.train.state import TrainState, abstract_train_state
 from kosmos_jax.train.step import make_train_step
 
 GiB = 1 << 30
@@ -171,13 +171,6 @@ def step_memory(compiled) -> StepMemory:
                       stats.temp_size_in_bytes, stats.generated_code_size_in_bytes, stats.peak_memory_in_bytes)
 
 
-def compiled_flops(compiled) -> float:
-    """FLOPs of the compiled (per-device) program."""
-    costs = compiled.cost_analysis()
-    costs = costs[0] if isinstance(costs, (list, tuple)) else costs
-    return float(costs.get("flops", 0.0))
-
-
 def sharded_bytes(tree) -> int:
     """Bytes one device holds of a tree of ShapeDtypeStructs with shardings (the most loaded device)."""
     return sum(math.prod(x.sharding.shard_shape(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(tree))
@@ -204,10 +197,9 @@ def hbm_overflow(message: str) -> tuple[str, int, int] | None:
 
 
 def memory_report(compiled, topology: Topology, hbm: int) -> dict:
-    """Memory and FLOPs of a compiled step. The TPU compiler refuses a program larger than the chip's
+    """Bytes per device of a compiled step. The TPU compiler refuses a program larger than the chip's
     usable HBM, so a TPU program that compiled fits; on CPU, the total must fit the share of RAM."""
     memory = step_memory(compiled)
-    flops = compiled_flops(compiled)
     tpu = topology.platform == "tpu"
     return {
         "per_device_argument_bytes": memory.argument,
@@ -219,8 +211,6 @@ def memory_report(compiled, topology: Topology, hbm: int) -> dict:
         "per_device_peak_bytes": memory.peak if tpu else None,
         "hbm_bytes": hbm,
         "fits": tpu or memory.total <= hbm,
-        "flops_per_device": flops,
-        "flops_per_step": flops * topology.device_count,  # work replicated over devices counted on each
     }
 
 
@@ -231,6 +221,36 @@ def refusal_report(overflow: tuple[str, int, int], argument_bytes: int) -> dict:
         return {"per_device_total_bytes": needed, "hbm_bytes": capacity, "fits": False}
     return {"per_device_argument_bytes": argument_bytes, "per_device_temp_bytes": needed,
             "per_device_total_bytes": argument_bytes + needed, "hbm_bytes": capacity, "fits": False}
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainerStep:
+    """The jitted train step the trainer builds for a config on a mesh, and its abstract inputs."""
+
+    step: Callable
+    state: TrainState  # ShapeDtypeStructs with shardings
+    batch: dict[str, jax.ShapeDtypeStruct]
+
+
+def trainer_step(config: ml_collections.ConfigDict, mesh: jax.sharding.Mesh) -> TrainerStep:
+    model_config = trainer.model_config(config.model, vocab_size(config))
+    tx, schedule = make_optimizer(config.optimizer, config.train.steps)
+    step = make_train_step(model_config, tx, schedule, mesh, microbatches=config.train.microbatches,
+                           seed=config.train.seed)
+    return TrainerStep(step, abstract_train_state(model_config, tx, mesh), batch_spec(config, mesh))
+
+
+def step_flops(config: ml_collections.ConfigDict, mesh: jax.sharding.Mesh, lowered=None) -> float:
+    """FLOPs of one step over the global batch, from the lowered program before it is partitioned.
+
+    XLA's cost analysis counts a loop's body once, so the count comes from the same step with its
+    layers unrolled and one microbatch (the same arithmetic); `lowered` is reused when it is that."""
+    if lowered is None or config.model.scan_layers or config.train.microbatches > 1:
+        flat = config.copy_and_resolve_references()
+        flat.model.scan_layers, flat.train.microbatches = False, 1
+        twin = trainer_step(flat, mesh)
+        lowered = twin.step.lower(twin.state, twin.batch)
+    return float(lowered.cost_analysis()["flops"])
 
 
 def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
@@ -244,27 +264,22 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
         trainer.check_batch_layout(config, mesh)
     except ValueError as error:
         raise ValueError(f"{topology.name}: {error}") from error
-    model_config = trainer.model_config(config.model, vocab_size(config))
-    tx, schedule = make_optimizer(config.optimizer, config.train.steps)
-    train_step = make_train_step(model_config, tx, schedule, mesh, microbatches=config.train.microbatches,
-                                 seed=config.train.seed)
-    state = abstract_train_state(model_config, tx, mesh)
+    built = trainer_step(config, mesh)
     described = {
         "topology": topology.name,
         "devices": len(devices),
         "device_kind": devices[0].device_kind,
         "mesh": dict(mesh.shape),
-        "params": param_count(state.params),
+        "params": param_count(built.state.params),
         "batch_size": config.train.batch_size,
         "max_length": config.data.build.max_length,
         "microbatches": config.train.microbatches,
-        "compute_dtype": model_config.compute_dtype,
-        "remat": model_config.remat,
-        "scan_layers": model_config.scan_layers,
+        "compute_dtype": config.model.compute_dtype,
+        "remat": config.model.remat,
+        "scan_layers": config.model.scan_layers,
     }
-    batch = batch_spec(config, mesh)
     start = time.perf_counter()
-    lowered = train_step.lower(state, batch)
+    lowered = built.step.lower(built.state, built.batch)
     lower_s = time.perf_counter() - start
     try:
         memory = memory_report(lowered.compile(), topology, hbm_bytes(topology, devices[0]))
@@ -272,9 +287,9 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
         overflow = hbm_overflow(str(error))
         if overflow is None:
             raise
-        memory = refusal_report(overflow, sharded_bytes((state, batch)))
+        memory = refusal_report(overflow, sharded_bytes((built.state, built.batch)))
     timing = {"lower_s": round(lower_s, 2), "compile_s": round(time.perf_counter() - start, 2)}  # lowering included
-    return {**described, **memory, **timing}
+    return {**described, **memory, "flops_per_step": step_flops(config, mesh, lowered), **timing}
 
 
 COLUMNS = ("topology", "devices", "mesh d x f x t", "remat", "scan", "batch", "args GiB", "out GiB", "temp GiB",
