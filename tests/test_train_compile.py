@@ -88,6 +88,19 @@ def test_plan_meshes_use_every_chip_and_split_the_paper_batch():
     assert paper.mesh.fsdp == -1 and not paper.model.remat, "entry_config must not change the config it copies"
 
 
+def test_planned_runs():
+    paper = _config("paper")
+    runs = train_compile.planned_runs(paper, None, every_planned=True)
+    assert [topology.name for _, topology in runs] == [entry.topology for entry in plan.PLAN]
+    assert [config.model.remat for config, _ in runs] == [entry.remat for entry in plan.PLAN]
+    with pytest.raises(ValueError, match="not both"):
+        train_compile.planned_runs(paper, "v5e:2x4", every_planned=True)
+    with pytest.raises(ValueError, match="give --topology"):
+        train_compile.planned_runs(paper, None, every_planned=False)
+    [(config, topology)] = train_compile.planned_runs(paper, "v5e:2x4", every_planned=False)
+    assert config is paper and topology.device_count == 8
+
+
 def test_total_counts_donated_outputs_once():
     memory = train_compile.StepMemory(argument=100, output=90, alias=80, temp=50, code=5, peak=120)
     assert memory.total == 100 + 90 - 80 + 50 + 5

@@ -354,6 +354,8 @@ def main(argv: Sequence[str]) -> None:
             jax.clear_caches()  # each paper-sized program holds gigabytes of host memory until dropped
             if options.json:
                 print(json.dumps(plans[-1]), flush=True)
+            elif options.plan:
+                print(f"compiled for {topology.name} in {plans[-1]['compile_s']:.0f} s", file=sys.stderr, flush=True)
     except ValueError as error:
         sys.exit(f"compile: {error}")
     if not options.json:
