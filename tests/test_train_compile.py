@@ -1,10 +1,8 @@
 """The compile command: topology names, meshes of the TPU plan, the memory table, and THE train step
 compiled for 8 fake CPU devices by the command line."""
 
-import dataclasses
 import importlib.util
 import json
-import math
 import os
 import subprocess
 import sys
