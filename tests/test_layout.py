@@ -22,7 +22,9 @@ LAYERS = (
     ("models", "baselines"),
     ("evaluation",),  # above train: the trainer scores decoded grasps; evaluation never imports train
     ("train",),
-    ("evaluate", "demo"),
+    ("evaluate",),
+    ("experiments", "predict"),  # experiments: train + evaluate per fold; predict: one grasp from a trained run
+    ("demo", "cli"),
 )
 LEVEL = {name: level for level, names in enumerate(LAYERS) for name in names}
 
