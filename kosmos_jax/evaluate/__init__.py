@@ -1,6 +1,8 @@
-"""`python -m kosmos_jax.evaluate --workdir=W`: a trained run's grasps, scored from its decoded answers.
+"""`python -m kosmos_jax.evaluate --workdir=W`: a trained run's grasps, scored from its decoded answers
+(KOSMOS-E) or its predicted grasps (a baseline: GR-ConvNet, GG-CNN2).
 
-Takes a workdir (run.json, tokenizer.model, checkpoints/) and a split of its dataset or a
-Cornell-format folder; gives WORKDIR/eval/STEP/results.json, results.md and answers.jsonl. The
-decoding and scoring are kosmos_jax.evaluation's; this stage reads back what the trainer wrote.
+Takes a workdir (run.json, checkpoints/; KOSMOS-E's also tokenizer.model) and a split of its data or
+a Cornell-format folder; gives WORKDIR/eval/STEP/results.json, results.md and answers.jsonl. The
+decoding and scoring are kosmos_jax.evaluation's; this stage reads back what the trainer wrote
+(run.py: KOSMOS-E's runs and what every run holds, baseline_run.py: a baseline's).
 """

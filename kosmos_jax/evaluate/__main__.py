@@ -9,6 +9,11 @@ answers, whether they parse); another split or a Cornell folder goes to eval/STE
 eval/STEP/cornell-<folder name>. --json prints results.json as one line on stdout; `accuracy` at
 its top level is the constrained accuracy overall, in percent. The split is scored under the
 run's protocol; a Cornell folder under the honest one.
+
+A baseline's run (configs/baselines.py, config.task "baseline") is scored the same way, one
+predicted grasp a view as a "non" instruction (evaluate/baseline_run.py): the same files and keys,
+`accuracy` its accuracy in percent, answers.jsonl one line a view with its grasp; its splits are
+the fold's test and train views, and --kinds can only be non.
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ import pathlib
 import sys
 import time
 
-from kosmos_jax.evaluate.run import RunError, open_run
+from kosmos_jax.evaluate.baseline_run import evaluate_baseline
+from kosmos_jax.evaluate.run import RunError, open_run, read_description, run_task
 from kosmos_jax.evaluation.cornell_examples import cornell_examples
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.evaluation.tally import markdown
@@ -45,7 +51,15 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def evaluate(args: argparse.Namespace) -> tuple[dict, list[dict], pathlib.Path]:
-    """(results, one row per example, the folder they belong in)."""
+    """(results, one row per example, the folder they belong in) of the run in args.workdir, by what it
+    trained (run.json's config.task): KOSMOS-E's decoded answers, or a baseline's predicted grasps."""
+    if run_task(read_description(args.workdir)) == "baseline":
+        return evaluate_baseline(args)
+    return evaluate_kosmos_e(args)
+
+
+def evaluate_kosmos_e(args: argparse.Namespace) -> tuple[dict, list[dict], pathlib.Path]:
+    """evaluate() on a KOSMOS-E run: its answers decoded with and without the grasp grammar."""
     started = time.perf_counter()
     run = open_run(args.workdir)
     mesh = make_mesh(1, -1, 1)

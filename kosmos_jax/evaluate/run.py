@@ -1,5 +1,6 @@
-"""A trained run's workdir as the evaluation needs it: its model, text format, protocol, tokenizer,
-test data and the parameters of one checkpoint.
+"""A trained KOSMOS-E run's workdir as the evaluation needs it: its model, text format, protocol,
+tokenizer, test data and the parameters of one checkpoint; and what any run's workdir holds (run.json,
+its task, its checkpoint steps), which the baselines' evaluation (baseline_run) reads too.
 
 Everything is read back from what the trainer wrote: run.json (the config, the data identity with
 the FormatConfig the examples were made with, the dataset folder), tokenizer.model and
@@ -43,13 +44,7 @@ class Run:
         return self.description["data_identity"]["build"]["protocol"]
 
     def steps(self) -> list[int]:
-        if not (self.workdir / "checkpoints").is_dir():
-            return []
-        checkpoints = Checkpoints(self.workdir, asynchronous=False)
-        try:
-            return sorted(checkpoints.all_steps())
-        finally:
-            checkpoints.close()
+        return checkpoint_steps(self.workdir)
 
     def split(self, name: str):
         """The stored split `name` of the run's dataset (StoredSplit)."""
@@ -65,12 +60,7 @@ class Run:
     def params(self, step: int | None, mesh=None):
         """(step, parameters) of checkpoint `step` (None: the newest), placed on `mesh` (default: all
         devices on the fsdp axis)."""
-        steps = self.steps()
-        if not steps:
-            raise RunError(f"{self.workdir} holds no checkpoint (checkpoints/ is empty or missing): train first")
-        step = steps[-1] if step is None else step
-        if step not in steps:
-            raise RunError(f"{self.workdir} has no checkpoint of step {step}; it has {steps}")
+        step = chosen_step(self.workdir, step)
         mesh = mesh or make_mesh(1, -1, 1)
         tx, _ = make_optimizer(self.config.optimizer, self.config.train.steps)
         checkpoints = Checkpoints(self.workdir, asynchronous=False)
@@ -81,12 +71,47 @@ class Run:
         return step, state.params
 
 
-def open_run(workdir) -> Run:
+def checkpoint_steps(workdir: pathlib.Path) -> list[int]:
+    if not (workdir / "checkpoints").is_dir():
+        return []
+    checkpoints = Checkpoints(workdir, asynchronous=False)
+    try:
+        return sorted(checkpoints.all_steps())
+    finally:
+        checkpoints.close()
+
+
+def chosen_step(workdir: pathlib.Path, step: int | None) -> int:
+    """`step` (None: the newest) if the workdir holds its checkpoint, else a RunError saying what it holds."""
+    steps = checkpoint_steps(workdir)
+    if not steps:
+        raise RunError(f"{workdir} holds no checkpoint (checkpoints/ is empty or missing): train first")
+    step = steps[-1] if step is None else step
+    if step not in steps:
+        raise RunError(f"{workdir} has no checkpoint of step {step}; it has {steps}")
+    return step
+
+
+def read_description(workdir) -> dict:
+    """The run.json a trainer wrote in `workdir`."""
     workdir = pathlib.Path(workdir)
     if not (workdir / RUN_FILE).is_file():
         raise RunError(f"{workdir} is not a training run's workdir (no {RUN_FILE}); "
                        "train one with python -m kosmos_jax.train --config=... --workdir=...")
-    description = json.loads((workdir / RUN_FILE).read_text())
+    return json.loads((workdir / RUN_FILE).read_text())
+
+
+def run_task(description: dict) -> str:
+    """What the run trained (its config.task): "kosmos_e" or "baseline"."""
+    return description["config"].get("task", "kosmos_e")
+
+
+def open_run(workdir) -> Run:
+    """A KOSMOS-E run's workdir (config.task "kosmos_e")."""
+    workdir = pathlib.Path(workdir)
+    description = read_description(workdir)
+    if run_task(description) != "kosmos_e":
+        raise RunError(f"{workdir} holds a {run_task(description)!r} run, not KOSMOS-E's")
     tokenizer_path = workdir / TOKENIZER_FILE
     if not tokenizer_path.is_file():
         raise RunError(f"{tokenizer_path} is missing: the trainer copies the dataset's tokenizer there; copy it back "

@@ -73,6 +73,19 @@ def _replicated_like(tree, mesh):
     return jax.tree.map(lambda _: NamedSharding(mesh, PartitionSpec()), tree)
 
 
+def initial_state(family, tx, seed: int) -> TrainState:
+    """Step 0: fresh parameters and BatchNorm statistics, the optimiser's initial state."""
+    _, params, rest = family.init(seed)
+    return TrainState(params, tx.init(params), jnp.zeros((), jnp.int32), rest)
+
+
+def abstract_state(family, tx, mesh) -> TrainState:
+    """The train state's shapes, replicated on `mesh`: a checkpoint's restore target."""
+    shapes = jax.eval_shape(lambda: initial_state(family, tx, 0))
+    return jax.tree.map(lambda x, s: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=s),
+                        shapes, _replicated_like(shapes, mesh))
+
+
 def make_baseline_step(family, tx, schedule, mesh, state_sharding, *, microbatches: int = 1, seed: int = 0):
     """`step(state, batch) -> (state, metrics)`: the trainer's step for a baseline (see the module docstring).
 
@@ -147,11 +160,9 @@ def baseline_task(config, mesh, tx, schedule):
                    "rng": {"seed": config.train.seed, "batches": "inputs.batch_rows(seed, step)"}}
 
     def fresh_state():
-        _, params, rest = family.init(config.train.seed)
-        return TrainState(params, tx.init(params), jnp.zeros((), jnp.int32), rest)
+        return initial_state(family, tx, config.train.seed)
 
-    abstract = jax.eval_shape(fresh_state)
-    state_sharding = _replicated_like(abstract, mesh)
+    state_sharding = _replicated_like(jax.eval_shape(fresh_state), mesh)
     train_step = make_baseline_step(family, tx, schedule, mesh, state_sharding,
                                     microbatches=config.train.microbatches, seed=config.train.seed)
 
@@ -169,8 +180,7 @@ def baseline_task(config, mesh, tx, schedule):
     return Task(
         description=description, batches=StepBatches(views.train, batch_size, config.train.seed),
         init_state=lambda: jax.jit(fresh_state, out_shardings=state_sharding)(),
-        abstract_state=lambda: jax.tree.map(lambda x, s: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=s),
-                                            abstract, state_sharding),
+        abstract_state=lambda: abstract_state(family, tx, mesh),
         train_step=lambda state, host: train_step(state, {k: jnp.asarray(host[k]) for k in inputs.BATCH_KEYS}),
         step_record=step_record,
         describe=lambda host: [f"{views.train.photo_id[r]} (copy {views.train.copy[r]})" for r in host["rows"]],
