@@ -1,7 +1,13 @@
 # shellcheck shell=bash
-# Source at the start of a command on the lent GPU machine (the `run` tool), from the repo root:
+# Source at the start of a command on the lent GPU machine (the `run` tool, carry [".whl"]), from
+# the repo root:
 #
-#     source launch/device_env.sh || exit 1; python3 -m kosmos_jax.train ...
+#     source launch/device_env.sh || exit 1
+#     python3 -m kosmos_jax.train --config=configs/kosmos_e.py:demo --workdir=/tmp/w --config.train.steps=300
+#     python3 -m kosmos_jax.evaluate --workdir=/tmp/w --json
+#
+# (2026-11-24 on the H100: the install took 3 s, that training 204 s with its dataset build and
+# evaluations, 0.039 s a step at batch 32, and the evaluation 55 s.)
 #
 # That machine has python3 3.12 with jax 0.11.2 and its CUDA plugin, and no network. The packages it
 # lacks, and the project's pins of pure-Python ones (optax, orbax-checkpoint, ...), travel as
