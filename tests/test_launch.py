@@ -16,7 +16,7 @@ LAUNCH = REPO / "launch"
 SCRIPTS = ["local.sh", "slurm.sbatch", "slurm_array.sbatch", "tpu_vm.sh"]
 STEERING = {
     "DRY_RUN", "PROCESSES", "FAKE_DEVICES", "COORDINATOR_PORT", "SETUP", "LAUNCH_PYTHON", "XLA_FLAGS",
-    "CONFIG", "WORKDIR", "MODULE", "REPO", "TPU_NAME", "ZONE", "PROJECT", "REMOTE_DIR",
+    "CONFIG", "WORKDIR", "MODULE", "REPO", "AGGREGATE", "TPU_NAME", "ZONE", "PROJECT", "REMOTE_DIR",
 }
 
 

@@ -1,0 +1,47 @@
+"""Fig. 6: grasp accuracy against the amount of training data, image-wise and object-wise.
+
+    python -m kosmos_jax.experiments --config=configs/experiments/data_size.py:cpu --workdir=runs/fig6
+
+Two series of arms that differ only in their training data: "augmentations" (augmented views of
+each training photo) and, on synthetic scenes, "photos" (how many scenes are drawn: more than
+Cornell has). One arm sits on both lines. The runner writes WORKDIR/data_size.png (accuracy vs
+training examples, log x, error bars the std over folds) and data_size.json; x is each run's
+training-split example count as its build recorded it.
+
+cpu: synthetic scenes, instruction kind NON, KOSMOS-E from configs/kosmos_e.py:demo trained from
+scratch for the same 400 steps in every arm (about 10 minutes a fold on 2 shared cores, see
+table1.py), so the arms differ in data, not in compute: augmentations 2, 4, 8, 16 of 300 photos and
+100, 300, 1000, 3000 photos of 4 augmentations (about 640 to 19,000 training examples); honest
+protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds, about 7 hours).
+paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
+--config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
+augmentations, 100 to 10,000 photos; both protocols, every fold.
+"""
+
+from kosmos_jax.experiments.spec import arm, experiment
+
+CPU_STEPS = 400
+VARIANTS = ("cpu", "paper")
+
+
+def get_config(arg: str | None = None):
+    variant = arg or "cpu"
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r} of configs/experiments/data_size.py; expected one of {VARIANTS}")
+    if variant == "cpu":
+        def cpu_arm(photos: int, augmentations: int, series: str):
+            return arm("configs/kosmos_e.py:demo", {"data.synthetic_photos": photos, "data.build.kinds": "non",
+                                                    "data.build.augmentations": augmentations,
+                                                    "train.steps": CPU_STEPS}, series=series)
+
+        arms = {f"photos{p}_aug{a}": cpu_arm(p, a, "augmentations") for p, a in ((300, 2), (300, 8), (300, 16))}
+        arms["photos300_aug4"] = cpu_arm(300, 4, "augmentations,photos")
+        arms.update({f"photos{p}_aug4": cpu_arm(p, 4, "photos") for p in (100, 1000, 3000)})
+        return experiment("data_size", arms, schemes="image,object", protocols="honest", folds="0,1,2",
+                          data_size_plot=True)
+    arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
+            for a in (4, 8, 16, 32)}
+    arms.update({f"synthetic{p}": arm("configs/kosmos_e.py:paper", {
+        "data.source": "synthetic", "data.synthetic_photos": p, "data.build.kinds": "non", "data.build.annotations": None,
+        "data.build.augmentations": 16}, series="photos") for p in (100, 1000, 10_000)})
+    return experiment("data_size", arms, schemes="image,object", protocols="honest,paper", data_size_plot=True)

@@ -1,0 +1,29 @@
+"""Table III: the grasp representation in the answer text: XYA, XYWHA, TLBRA, TLBRA-patch.
+
+    python -m kosmos_jax.experiments --config=configs/experiments/table3.py:cpu --workdir=runs/table3
+
+cpu: synthetic scenes (the demo's 300 photos and 16 augmentations), instruction kind NON,
+KOSMOS-E from configs/kosmos_e.py:demo trained from scratch for 400 steps (about 10 minutes a fold
+on 2 shared cores, see table1.py); honest protocol, image-wise folds 0, 1 and 2 of 5 by default
+(12 folds, about 2 hours). paper: configs/kosmos_e.py:paper (Cornell, every instruction kind,
+KOSMOS-2 initialisation: --config.init_from), both protocols, image-wise, every fold.
+"""
+
+from kosmos_jax.experiments.spec import arm, experiment
+
+REPRESENTATIONS = ("xya", "xywha", "tlbra", "tlbra_patch")
+CPU_STEPS = 400
+VARIANTS = ("cpu", "paper")
+
+
+def get_config(arg: str | None = None):
+    variant = arg or "cpu"
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r} of configs/experiments/table3.py; expected one of {VARIANTS}")
+    if variant == "cpu":
+        arms = {name: arm("configs/kosmos_e.py:demo", {"data.build.kinds": "non", "data.build.representation": name,
+                                                       "train.steps": CPU_STEPS})
+                for name in REPRESENTATIONS}
+        return experiment("table3", arms, schemes="image", protocols="honest", folds="0,1,2")
+    arms = {name: arm("configs/kosmos_e.py:paper", {"data.build.representation": name}) for name in REPRESENTATIONS}
+    return experiment("table3", arms, schemes="image", protocols="honest,paper")

@@ -1,0 +1,34 @@
+"""Table IV: individual outputs (the centre and the angle asked apart, combined into one grasp) vs
+joint outputs (one answer holds the whole grasp), each with the angle as a 256-bin code or in radians.
+
+    python -m kosmos_jax.experiments --config=configs/experiments/table4.py:cpu --workdir=runs/table4
+
+cpu: synthetic scenes (the demo's 300 photos and 16 augmentations), instruction kind NON,
+KOSMOS-E from configs/kosmos_e.py:demo trained from scratch for 400 steps (about 10 minutes a fold
+on 2 shared cores, see table1.py); honest protocol, image-wise folds 0, 1 and 2 of 5 by default
+(12 folds, about 2 hours). paper: configs/kosmos_e.py:paper (Cornell, every instruction kind,
+KOSMOS-2 initialisation: --config.init_from), both protocols, image-wise, every fold.
+"""
+
+from kosmos_jax.experiments.spec import arm, experiment
+
+OUTPUTS = {"individual": True, "joint": False}
+ANGLES = {"code": True, "radians": False}
+CPU_STEPS = 400
+VARIANTS = ("cpu", "paper")
+
+
+def arms_of(config: str, changes: dict) -> dict:
+    return {f"{output}_{angle}": arm(config, {"data.build.individual": individual, "data.build.angle_code": code,
+                                              **changes})
+            for output, individual in OUTPUTS.items() for angle, code in ANGLES.items()}
+
+
+def get_config(arg: str | None = None):
+    variant = arg or "cpu"
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r} of configs/experiments/table4.py; expected one of {VARIANTS}")
+    if variant == "cpu":
+        arms = arms_of("configs/kosmos_e.py:demo", {"data.build.kinds": "non", "train.steps": CPU_STEPS})
+        return experiment("table4", arms, schemes="image", protocols="honest", folds="0,1,2")
+    return experiment("table4", arms_of("configs/kosmos_e.py:paper", {}), schemes="image", protocols="honest,paper")

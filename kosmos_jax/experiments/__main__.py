@@ -1,0 +1,73 @@
+"""`python -m kosmos_jax.experiments --config=configs/experiments/table1.py:cpu --workdir=runs/table1`
+
+    [--config.folds=0,1] [--config.run_arms=kosmos_e] [--config.init_from=KOSMOS2_FOLDER]
+    [--aggregate_only] [--check_only]
+
+Trains and scores every (arm, protocol, scheme, fold) of the experiment not yet recorded under
+WORKDIR (a killed sweep resumes: finished folds are skipped, a half-trained run resumes from its
+checkpoint), then writes WORKDIR/results.json and table.md (and data_size.png/json for Fig. 6).
+--aggregate_only only writes those from the folds recorded so far (after a SLURM array's tasks);
+--check_only builds every arm's config and model shapes and trains nothing. Exit status: 0 done,
+1 a fold failed or the config is wrong, 3 stopped by SIGTERM (the same command resumes).
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+
+from absl import app, flags, logging
+from ml_collections import config_flags
+
+
+def define_flags() -> None:
+    """Defined only when run as a command, so importing this module defines no absl flag."""
+    config_flags.DEFINE_config_file("config", None, "an experiment config, e.g. configs/experiments/table1.py:cpu")
+    flags.DEFINE_string("workdir", None, "the experiment's folder: one run folder per arm and fold, results.json")
+    flags.DEFINE_bool("aggregate_only", False, "only aggregate the folds recorded so far")
+    flags.DEFINE_bool("check_only", False, "build every arm's config and model shapes; train nothing")
+    flags.mark_flags_as_required(["config", "workdir"])
+
+
+def command_line(argv: list[str]) -> str:
+    return " ".join(["python -m kosmos_jax.experiments", *(shlex.quote(a) for a in argv[1:])])
+
+
+def main(argv) -> int:
+    if len(argv) > 1:
+        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+    logging.set_verbosity(logging.WARNING)
+    from kosmos_jax.experiments.aggregate import write_results
+    from kosmos_jax.experiments.checks import check_experiment
+    from kosmos_jax.experiments.runner import SweepStopped, run_experiment
+    from kosmos_jax.experiments.spec import ExperimentError
+
+    options = flags.FLAGS
+    config, command = options.config, command_line(sys.argv)
+    try:
+        if options.check_only:
+            for report in check_experiment(config):
+                print(json.dumps(report))
+            return 0
+        if options.aggregate_only:
+            results = write_results(config, options.workdir, command)
+            print(f"aggregated {sum(len(r['folds']) for r in results['rows'] if r['kind'] == 'trained')} folds into "
+                  f"{options.workdir}/results.json and table.md ({len(results['missing'])} not run yet)")
+            return 0
+        summary = run_experiment(config, options.workdir, command=command)
+    except ExperimentError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except SweepStopped as error:
+        print(f"stopped: {error}", file=sys.stderr)
+        return 3
+    print(f"{summary['trained']} folds trained, {summary['skipped']} skipped, {len(summary['failed'])} failed")
+    for name, error in summary["failed"]:
+        print(f"failed: {name}: {error}", file=sys.stderr)
+    return 1 if summary["failed"] else 0
+
+
+if __name__ == "__main__":
+    define_flags()
+    app.run(main)

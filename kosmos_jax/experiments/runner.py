@@ -1,0 +1,144 @@
+"""The sweep: every chosen (arm, protocol, scheme, fold) trained, scored and recorded; finished folds skipped.
+
+    summary = run_experiment(config, workdir, command="python -m kosmos_jax.experiments ...")
+
+Per fold, in WORKDIR/<arm>/<protocol>-<scheme>-fold<i>: trainer.train (which resumes a half-trained
+run itself), the evaluate command's evaluate + write (WORKDIR/.../eval/STEP/; results already there
+for the trained step are read, not decoded again), the no-learning predictors on the run's test
+instructions (KOSMOS-E arms), then the record fold.json. A fold with a record is skipped. A fold that
+fails is reported and the sweep goes on; a SIGTERM'd training stops the sweep (SweepStopped) after
+the trainer's checkpoint, and the same command resumes. Every fold's config is checked (checks.py:
+model shapes, optimiser, data settings) before anything trains, so a bad arm fails at once. `train` and `evaluate` are arguments so tests can count calls.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import pathlib
+import time
+import traceback
+from collections.abc import Callable
+
+import jax
+
+from kosmos_jax.experiments import checks, no_learning, records, spec
+from kosmos_jax.experiments.aggregate import write_results
+
+
+class SweepStopped(RuntimeError):
+    """Training stopped before its last step (SIGTERM): rerun the same command to resume."""
+
+
+def default_train(config, workdir) -> dict:
+    from kosmos_jax.train.trainer import train
+
+    return train(config, workdir)
+
+
+def evaluate_run(workdir: pathlib.Path, step: int) -> dict:
+    """The run's test results at `step`, by the evaluate command's code (written under eval/STEP/)."""
+    existing = workdir / "eval" / str(step) / "results.json"
+    if existing.is_file():
+        return json.loads(existing.read_text())
+    from kosmos_jax.evaluate.__main__ import evaluate, parse_args, write
+
+    results, rows, folder = evaluate(parse_args(["--workdir", str(workdir), "--step", str(step)]))
+    write(results, rows, folder)
+    return results
+
+
+def no_learning_scores(workdir: pathlib.Path) -> dict | None:
+    """The no-learning predictors on a KOSMOS-E run's test instructions (None for a baseline's run)."""
+    description = records.run_description(workdir)
+    if description.get("config", {}).get("task", "kosmos_e") != "kosmos_e":
+        return None
+    from kosmos_jax.train.data import open_dataset
+
+    test = open_dataset(description["dataset_dir"]).splits()["test"].examples
+    identity = description["data_identity"]
+    return {"tests": no_learning.digest(test),
+            "scores": no_learning.score(test, identity["build"]["protocol"], identity["format"]["image_size"])}
+
+
+def now() -> str:
+    return datetime.datetime.now().strftime("%H:%M:%S")
+
+
+def run_fold(config, run: spec.Run, fold_config, root, *, train: Callable, evaluate: Callable, command: str) -> dict:
+    """Train, score and record one fold; returns its record."""
+    workdir = run.workdir(root)
+    started = time.perf_counter()
+    summary = train(fold_config, workdir)
+    trained = time.perf_counter()
+    if not summary.get("finished"):
+        raise SweepStopped(f"{run.name}: training stopped at step {summary.get('step')} "
+                           f"({summary.get('stopped', 'unfinished')}); rerun the same command to resume")
+    results = evaluate(workdir, summary["step"])
+    scored = time.perf_counter()
+    baselines = no_learning_scores(workdir)
+    description = records.run_description(workdir)
+    entry = config.arms[run.arm]
+    record = {
+        "experiment": config.name, "arm": run.arm, "protocol": run.protocol, "scheme": run.scheme, "fold": run.fold,
+        "k": config.k, "series": entry.series, "arm_config": entry.config, "overrides": spec.dotted(entry.overrides),
+        "task": spec.task_of(fold_config), "workdir": str(workdir),
+        "accuracy": results["accuracy"], "by_kind": results.get("by_kind", {}), "by_scene": results.get("by_scene", {}),
+        "eval": {key: results.get(key) for key in ("step", "split", "instructions", "examples", "protocol", "backend")},
+        "unconstrained": results.get("unconstrained"),
+        "training_examples": records.training_examples(description),
+        "train": summary,
+        "seconds": {"train": round(trained - started, 1), "evaluate": round(scored - trained, 1),
+                    "total": round(time.perf_counter() - started, 1)},
+        "no_learning": baselines, "machine": records.machine(), "command": command,
+        "finished_at": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+    }
+    records.write_json(workdir / records.FOLD_FILE, record)
+    return record
+
+
+def finished_line(record: dict) -> str:
+    line = f"accuracy {record['accuracy']:.2f}%"
+    if record["no_learning"]:
+        scores = record["no_learning"]["scores"]
+        line += f" (image centre {scores['image_centre']['accuracy']:.2f}%, oracle {scores['gt_mean_oracle']['accuracy']:.2f}%)"
+    return line + f", {record['training_examples']} training examples, {record['seconds']['total']:.0f} s"
+
+
+def run_experiment(config, workdir, *, train: Callable | None = None, evaluate: Callable | None = None,
+                   command: str = "", say: Callable[[str], None] = lambda line: print(line, flush=True)) -> dict:
+    """Train and score every chosen fold not yet recorded, then aggregate. Returns {"trained",
+    "skipped", "failed": [(run name, error)], "results": results.json's content}."""
+    train = train or default_train
+    evaluate = evaluate or evaluate_run
+    root = pathlib.Path(workdir)
+    chosen = spec.runs(config)
+    arms = {name: spec.arm_config(config, name) for name in dict.fromkeys(r.arm for r in chosen)}
+    fold_configs = {run: spec.fold_config(arms[run.arm], run, config.k) for run in chosen}
+    for run, fold_config in fold_configs.items():
+        checks.check_run(fold_config, run.name)
+    trained, skipped, failed = 0, 0, []
+    say(f"[{now()}] experiment {config.name}: {len(chosen)} folds in {root}")
+    for number, run in enumerate(chosen, 1):
+        where = run.workdir(root)
+        if records.read_record(where) is not None:
+            say(f"[{now()}] ({number}/{len(chosen)}) {run.name} done, skipped ({where})")
+            skipped += 1
+            continue
+        say(f"[{now()}] ({number}/{len(chosen)}) {run.name}: training in {where}")
+        try:
+            record = run_fold(config, run, fold_configs[run], root, train=train, evaluate=evaluate, command=command)
+        except SweepStopped:
+            raise
+        except Exception as error:  # noqa: BLE001 - one broken fold must not stop a night's sweep
+            say(f"[{now()}] ({number}/{len(chosen)}) {run.name} FAILED: {type(error).__name__}: {error}")
+            say("".join(traceback.format_exception(error, limit=-3)).rstrip())
+            failed.append((run.name, f"{type(error).__name__}: {error}"))
+            continue
+        finally:
+            jax.clear_caches()  # each arm compiles its own programs; keep memory flat over a long sweep
+        trained += 1
+        say(f"[{now()}] ({number}/{len(chosen)}) {run.name} finished: {finished_line(record)}")
+    results = write_results(config, root, command)
+    say(f"[{now()}] wrote {root / 'results.json'} and {root / 'table.md'}")
+    return {"trained": trained, "skipped": skipped, "failed": failed, "results": results}

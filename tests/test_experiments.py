@@ -1,0 +1,412 @@
+"""The experiment runner: fold lists, arm configs, the skip and resume logic (a fake trainer counts its
+calls), aggregation (mean, std, n; table.md; the no-learning rows), the data-size plot, every
+experiment config (cpu and paper) built without training, the SLURM aggregate step, and one tiny
+sweep end to end (slow)."""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from kosmos_jax.experiments import aggregate, checks, data_size, records, runner, spec
+from kosmos_jax.experiments.spec import ExperimentError, arm, experiment
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+EXPERIMENTS = ("table1", "table2", "table3", "table4", "table5", "data_size")
+
+
+# -- fold lists, arms, training configs ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("text, k, expected", [("", 5, [0, 1, 2, 3, 4]), ("0,2", 5, [0, 2]), (" 3 ", 5, [3]),
+                                               ("2,0", 3, [0, 2]), (4, 5, [4])])
+def test_parse_folds(text, k, expected):
+    assert spec.parse_folds(text, k) == expected
+
+
+@pytest.mark.parametrize("text, k, message", [
+    ("5", 5, "fold 5 does not exist with k=5"), ("0,0", 5, "names a fold twice"), ("a", 5, "expected fold numbers"),
+    ("0,,1", 5, "expected fold numbers"), ("-1", 5, "expected fold numbers"), ("0", 1, "at least 2 folds"),
+    (None, 5, "expected text"),
+])
+def test_parse_folds_errors(text, k, message):
+    with pytest.raises(ExperimentError, match=message):
+        spec.parse_folds(text, k)
+
+
+def test_parse_names():
+    assert spec.parse_names("paper, honest", spec.PROTOCOLS, "protocol") == ["paper", "honest"]
+    with pytest.raises(ExperimentError, match="unknown scheme 'photo'"):
+        spec.parse_names("image,photo", spec.SCHEMES, "scheme")
+    with pytest.raises(ExperimentError, match="comma-separated list"):
+        spec.parse_names("", spec.SCHEMES, "scheme")
+
+
+def test_nested_and_dotted_overrides():
+    tree = spec.nested({"data.build.kinds": "non", "data.source": "cornell", "train.steps": 3})
+    assert tree == {"data": {"build": {"kinds": "non"}, "source": "cornell"}, "train": {"steps": 3}}
+    assert spec.dotted(arm("configs/kosmos_e.py:tiny", {"data.build.kinds": "non"}).overrides) == {"data.build.kinds": "non"}
+    with pytest.raises(ExperimentError, match="another override sets to a value"):
+        spec.nested({"data": 1, "data.source": "x"})
+
+
+def one_arm(config: str, overrides: dict | None = None, **fields):
+    return experiment("unit", {"a": arm(config, overrides)}, **{"schemes": "image", "protocols": "honest", **fields})
+
+
+def test_arm_config_applies_overrides_and_fold_settings():
+    config = one_arm("configs/kosmos_e.py:tiny", {"data.build.kinds": "all", "train.steps": 3})
+    base = spec.arm_config(config, "a")
+    assert base.data.build.kinds == "all" and base.train.steps == 3
+    fold = spec.fold_config(base, spec.Run("a", "paper", "object", 2), 4)
+    assert (fold.data.build.protocol, fold.data.build.split, fold.data.build.fold, fold.data.build.folds) == (
+        "paper", "object", 2, 4)
+    assert base.data.build.protocol == "honest"  # the arm's config is left as it was
+    baseline = spec.fold_config(spec.arm_config(one_arm("configs/baselines.py:tiny"), "a"),
+                                spec.Run("a", "paper", "image", 1), 3)
+    assert (baseline.data.protocol, baseline.data.scheme, baseline.data.fold, baseline.data.folds) == ("paper", "image", 1, 3)
+
+
+@pytest.mark.parametrize("config, overrides, message", [
+    ("configs/missing.py:tiny", None, "config file 'configs/missing.py' does not exist"),
+    ("configs/kosmos_e.py:huge", None, "unknown variant 'huge'"),
+    ("configs/kosmos_e.py:tiny", {"data.build.kindz": "non"}, "no field 'data.build.kindz'"),
+    ("configs/kosmos_e.py:tiny", {"dataa.source": "x"}, "no field 'dataa'"),
+    ("configs/kosmos_e.py:tiny", {"train.steps": "many"}, "train.steps='many'"),
+])
+def test_arm_config_errors(config, overrides, message):
+    with pytest.raises(ExperimentError, match=message):
+        spec.arm_config(one_arm(config, overrides), "a")
+
+
+def test_unknown_arm_and_arm_order():
+    config = experiment("unit", {"zeta": arm("configs/baselines.py:tiny"), "alpha": arm("configs/baselines.py:tiny")},
+                        schemes="image", protocols="honest", k=3)
+    assert spec.arm_names(config) == ["zeta", "alpha"]  # the config's order, not the ConfigDict's sorted keys
+    config.run_arms = "alpha,beta"
+    with pytest.raises(ExperimentError, match="unknown arm 'beta'; expected some of zeta, alpha"):
+        spec.runs(config)
+    with pytest.raises(ExperimentError, match="unknown arm 'beta'"):
+        spec.arm_config(config, "beta")
+
+
+def test_init_from_sets_weights_and_tokenizer(tmp_path):
+    (tmp_path / spec.KOSMOS_TOKENIZER).write_text("x")
+    config = one_arm("configs/kosmos_e.py:paper")
+    config.init_from = str(tmp_path)
+    base = spec.arm_config(config, "a")
+    assert base.init_from == str(tmp_path) and base.data.build.tokenizer == str(tmp_path / spec.KOSMOS_TOKENIZER)
+
+# -- the sweep with a fake trainer ---------------------------------------------------------------
+
+
+class FakeTrainer:
+    """Records each call; writes the run.json a baseline run has (training views) and finishes,
+    or stops early (SIGTERM) when asked."""
+
+    def __init__(self, stop_at=None, fail_at=None):
+        self.calls, self.stop_at, self.fail_at = [], stop_at, fail_at
+
+    def __call__(self, config, workdir):
+        run = (config.data.protocol, config.data.scheme, config.data.fold)
+        self.calls.append((pathlib.Path(workdir).parent.name, *run, config.data.folds))
+        if run == self.fail_at:
+            raise FloatingPointError("loss is NaN")
+        workdir.mkdir(parents=True, exist_ok=True)
+        (workdir / "run.json").write_text(json.dumps({"config": config.to_dict(), "views": {"train": 10 + config.data.fold}}))
+        if run == self.stop_at:
+            return {"finished": False, "step": 1, "stopped": "preempted"}
+        return {"finished": True, "step": config.train.steps, "resumed_from": 0}
+
+
+def fake_evaluate(workdir, step):
+    fold = int(workdir.name[-1])
+    figures = {"accuracy": 10.0 * (fold + 1), "instructions": 4}
+    return {"accuracy": figures["accuracy"], "step": step, "by_kind": {"non": figures}, "by_scene": {"single": figures}}
+
+
+def baseline_experiment(folds="0,1"):
+    arms = {"b1": arm("configs/baselines.py:tiny"), "b2": arm("configs/baselines.py:tiny", {"train.steps": 4})}
+    return experiment("unit", arms, schemes="image,object", protocols="honest", k=3, folds=folds)
+
+
+def sweep(config, root, trainer, lines=None):
+    return runner.run_experiment(config, root, train=trainer, evaluate=fake_evaluate, command="pytest",
+                                 say=(lines if lines is not None else []).append)
+
+
+def test_finished_folds_are_skipped(tmp_path):
+    config, trainer = baseline_experiment(), FakeTrainer()
+    summary = sweep(config, tmp_path, trainer)
+    assert summary["trained"] == 8 and summary["failed"] == []
+    assert sorted(trainer.calls) == sorted((arm_, "honest", scheme, fold, 3) for arm_ in ("b1", "b2")
+                                           for scheme in ("image", "object") for fold in (0, 1))
+    lines = []
+    again = sweep(config, tmp_path, trainer, lines)
+    assert len(trainer.calls) == 8 and again["skipped"] == 8 and again["trained"] == 0
+    assert sum(line.endswith(f"done, skipped ({tmp_path / 'b1' / 'honest-image-fold0'})") for line in lines) == 1
+    assert sum("done, skipped" in line for line in lines) == 8
+    (tmp_path / "b2" / "honest-object-fold1" / records.FOLD_FILE).unlink()
+    sweep(config, tmp_path, trainer)
+    assert trainer.calls[8:] == [("b2", "honest", "object", 1, 3)]
+
+
+def test_fold_subset_and_arm_subset(tmp_path):
+    config, trainer = baseline_experiment(folds="2"), FakeTrainer()
+    config.run_arms = "b2"
+    sweep(config, tmp_path, trainer)
+    assert sorted(trainer.calls) == [("b2", "honest", "image", 2, 3), ("b2", "honest", "object", 2, 3)]
+
+
+def test_a_stopped_training_stops_the_sweep_and_resumes(tmp_path):
+    config = baseline_experiment()
+    stopping = FakeTrainer(stop_at=("honest", "image", 1))
+    with pytest.raises(runner.SweepStopped, match="b1 honest-image fold 1: training stopped at step 1"):
+        sweep(config, tmp_path, stopping)
+    assert len(stopping.calls) == 2 and records.read_record(tmp_path / "b1" / "honest-image-fold1") is None
+    trainer = FakeTrainer()
+    sweep(config, tmp_path, trainer)
+    assert trainer.calls[0] == ("b1", "honest", "image", 1, 3) and len(trainer.calls) == 7
+
+
+def test_a_failed_fold_is_reported_and_the_rest_go_on(tmp_path):
+    summary = sweep(baseline_experiment(), tmp_path, FakeTrainer(fail_at=("honest", "object", 0)))
+    assert summary["trained"] == 6
+    assert summary["failed"] == [("b1 honest-object fold 0", "FloatingPointError: loss is NaN"),
+                                 ("b2 honest-object fold 0", "FloatingPointError: loss is NaN")]
+    assert "b1 honest-object fold 0" in summary["results"]["missing"]
+
+
+def test_a_bad_config_fails_before_any_training(tmp_path):
+    config, trainer = baseline_experiment(), FakeTrainer()
+    config.arms.b2.overrides.train.steps = 0
+    with pytest.raises(ExperimentError, match="train.steps=0"):
+        sweep(config, tmp_path, trainer)
+    assert trainer.calls == []
+
+
+def test_fold_record(tmp_path):
+    sweep(baseline_experiment(), tmp_path, FakeTrainer())
+    record = records.read_record(tmp_path / "b2" / "honest-object-fold1")
+    assert record["accuracy"] == 20.0 and record["training_examples"] == 11 and record["task"] == "baseline"
+    assert (record["arm"], record["protocol"], record["scheme"], record["fold"], record["k"]) == ("b2", "honest", "object", 1, 3)
+    assert record["overrides"] == {"train.steps": 4} and record["command"] == "pytest"
+    assert record["machine"]["cpu_count"] == os.cpu_count() and record["machine"]["devices"]
+    assert set(record["seconds"]) == {"train", "evaluate", "total"} and record["no_learning"] is None
+
+# -- aggregation ---------------------------------------------------------------------------------
+
+
+def test_summary():
+    assert aggregate.summary([10.0, 20.0, 30.0]) == {"mean": 20.0, "std": round(float(np.std([10, 20, 30])), 4),
+                                                     "n_folds": 3}
+    assert aggregate.summary([]) == {"mean": None, "std": None, "n_folds": 0}
+
+
+def test_aggregate_results_and_table(tmp_path):
+    sweep(baseline_experiment(), tmp_path, FakeTrainer())
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["missing"] == [] and results["experiment"] == "unit"
+    rows = {(r["arm"], r["scheme"]): r for r in results["rows"]}
+    assert len(rows) == 4
+    row = rows[("b1", "object")]
+    assert row["folds"] == [0, 1] and row["fold_accuracies"] == [10.0, 20.0]
+    assert (row["mean"], row["std"], row["n_folds"]) == (15.0, 5.0, 2)
+    assert row["by_kind"]["non"]["mean"] == 15.0 and row["by_scene"]["single"]["n_folds"] == 2
+    assert row["training_examples"] == [10, 11] and row["commands"] == ["pytest"] and len(row["machines"]) == 1
+    table = (tmp_path / "table.md").read_text()
+    assert "| arm | IW honest | OW honest |" in table
+    assert "| b1 | 15.00 +- 5.00 (2) | 15.00 +- 5.00 (2) |" in table
+    assert "| b2 | 15.00 +- 5.00 (2) | 15.00 +- 5.00 (2) |" in table
+    assert "`pytest`" in table and "per instruction kind" not in table  # NON only: no per-kind section
+    # the aggregate step alone reads the same records back
+    (tmp_path / "results.json").unlink()
+    again = aggregate.write_results(baseline_experiment(folds=""), tmp_path, "aggregate")
+    assert again["missing"] == [f"{a} honest-{s} fold 2" for a in ("b1", "b2") for s in ("image", "object")]
+    assert "Folds not run yet (4)" in (tmp_path / "table.md").read_text()
+
+
+def kosmos_record(root, config, run, accuracy, tests, kinds):
+    scores = lambda value: {"accuracy": value, "instructions": 10,
+                            "by_kind": {k: {"accuracy": value, "instructions": 5} for k in kinds},
+                            "by_scene": {"single": {"accuracy": value, "instructions": 10}}}
+    record = {"experiment": config.name, "arm": run.arm, "protocol": run.protocol, "scheme": run.scheme,
+              "fold": run.fold, "accuracy": accuracy, "by_kind": {k: {"accuracy": accuracy + i} for i, k in enumerate(kinds)},
+              "by_scene": {"single": {"accuracy": accuracy}}, "training_examples": 100, "seconds": {"total": 60.0},
+              "machine": records.machine(), "command": "cmd",
+              "no_learning": {"tests": tests, "scores": {"image_centre": scores(2.0 + run.fold), "gt_mean_oracle": scores(90.0)}}}
+    records.write_json(run.workdir(root) / records.FOLD_FILE, record)
+
+
+def kosmos_experiment(tmp_path, kinds=("non",), same_tests=True):
+    config = experiment("t", {"x": arm("configs/kosmos_e.py:tiny"), "y": arm("configs/kosmos_e.py:tiny")},
+                        schemes="image", protocols="honest", k=2)
+    for run in spec.runs(config):
+        tests = f"fold{run.fold}" if same_tests or run.arm == "x" else f"other{run.fold}"
+        kosmos_record(tmp_path, config, run, 10.0 * (run.fold + 1) + (run.arm == "y"), tests, kinds)
+    return config
+
+
+def test_no_learning_rows_shared_by_arms_with_the_same_tests(tmp_path):
+    config = kosmos_experiment(tmp_path)
+    results = aggregate.write_results(config, tmp_path)
+    shared = [r for r in results["rows"] if r["kind"] == "no_learning"]
+    assert [(r["arm"], r["tests_of"]) for r in shared] == [("image_centre", ["x", "y"]), ("gt_mean_oracle", ["x", "y"])]
+    assert shared[0]["fold_accuracies"] == [2.0, 3.0] and shared[0]["mean"] == 2.5
+    table = (tmp_path / "table.md").read_text()
+    assert "| image centre | 2.50 +- 0.50 (2) |" in table and "| ground-truth mean (oracle) | 90.00 +- 0.00 (2) |" in table
+    assert "| y | 16.00 +- 5.00 (2) |" in table
+
+
+def test_no_learning_rows_of_different_tests_are_apart(tmp_path):
+    config = kosmos_experiment(tmp_path, kinds=("non", "colour", "multi-colour"), same_tests=False)
+    results = aggregate.write_results(config, tmp_path)
+    assert sorted(tuple(r["tests_of"]) for r in results["rows"] if r["kind"] == "no_learning") == [
+        ("x",), ("x",), ("y",), ("y",)]
+    table = (tmp_path / "table.md").read_text()
+    assert "| image centre (tests of y) | 2.50 +- 0.50 (2) |" in table
+    assert "## IW honest: per instruction kind and scene" in table
+    assert "| arm | colour | multi-colour | non | scene single |" in table
+    assert "| x | 16.00 +- 5.00 (2) | 17.00 +- 5.00 (2) | 15.00 +- 5.00 (2) | 15.00 +- 5.00 (2) |" in table
+
+# -- the data-size plot --------------------------------------------------------------------------
+
+
+def size_rows():
+    def row(arm_, series, scheme, examples, accuracies):
+        return {"kind": "trained", "arm": arm_, "series": series, "protocol": "honest", "scheme": scheme,
+                "training_examples": examples, "training_examples_mean": float(np.mean(examples)),
+                "fold_accuracies": accuracies, **aggregate.summary(accuracies)}
+    return [row("p100", "photos", "image", [640, 660], [5.0, 7.0]), row("p300", "augmentations,photos", "image",
+            [1900, 1950], [10.0, 14.0]), row("a8", "augmentations", "image", [3800, 3900], [20.0, 20.0]),
+            row("p100", "photos", "object", [600, 610], [3.0, 5.0]), row("other", "", "image", [10], [99.0]),
+            {"kind": "no_learning", "arm": "image_centre", "protocol": "honest", "scheme": "image", "n_folds": 2}]
+
+
+def test_data_size_points_and_figure():
+    points = data_size.points(size_rows())
+    lines = data_size.lines(points)
+    assert set(lines) == {("honest", "photos", "image"), ("honest", "augmentations", "image"), ("honest", "photos", "object")}
+    assert [p["arm"] for p in lines[("honest", "photos", "image")]] == ["p100", "p300"]  # p300 sits on both lines
+    assert [p["arm"] for p in lines[("honest", "augmentations", "image")]] == ["p300", "a8"]
+    figure = data_size.figure(points)
+    (ax,) = figure.axes
+    assert ax.get_xscale() == "log"
+    plotted = {c.get_label(): (list(c.lines[0].get_xdata()), list(c.lines[0].get_ydata())) for c in ax.containers}
+    assert plotted["IW, photos"] == ([650.0, 1925.0], [6.0, 12.0])
+    assert plotted["OW, photos"] == ([605.0], [4.0])
+    with pytest.raises(ValueError, match="nothing to plot"):
+        data_size.figure([])
+
+
+def test_data_size_files(tmp_path):
+    data, plot = data_size.write(tmp_path, size_rows())
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert matplotlib.image.imread(plot).shape[2] in (3, 4)
+    written = json.loads(data.read_text())["points"]
+    assert [(p["arm"], p["series"], p["training_examples"], p["accuracy_mean"], p["accuracy_std"]) for p in written
+            if p["scheme"] == "image"] == [("p300", "augmentations", 1925.0, 12.0, 2.0),
+                                           ("a8", "augmentations", 3850.0, 20.0, 0.0),
+                                           ("p100", "photos", 650.0, 6.0, 1.0), ("p300", "photos", 1925.0, 12.0, 2.0)]
+
+# -- the experiment configs ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("variant", ["cpu", "paper"])
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiment_config_builds(name, variant):
+    config = spec.load_config(f"configs/experiments/{name}.py:{variant}")
+    reports = checks.check_experiment(config)
+    cells = {(r["arm"], r["protocol"], r["scheme"]) for r in reports}
+    assert cells == {(a, p, s) for a in config.arms for p in config.protocols.split(",") for s in config.schemes.split(",")}
+    assert all(r["params"] > 0 for r in reports)
+    if variant == "paper":
+        assert config.folds == "" and spec.parse_folds(config.folds, config.k) == list(range(5))
+        assert all(r["params"] > 1e9 for r in reports if r["task"] == "kosmos_e")  # KOSMOS-2's size
+    if name == "data_size":
+        assert config.data_size_plot and all(config.arms[a].series for a in config.arms)
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_cpu_kosmos_arms_build_on_the_demo_config(name):
+    """The cpu arms take their model, optimiser and batch from configs/kosmos_e.py:demo (tuned there)."""
+    demo = spec.load_config("configs/kosmos_e.py:demo")
+    config = spec.load_config(f"configs/experiments/{name}.py:cpu")
+    kosmos = [a for a in config.arms if config.arms[a].config.startswith("configs/kosmos_e.py")]
+    assert kosmos
+    for name_ in kosmos:
+        assert config.arms[name_].config == "configs/kosmos_e.py:demo"
+        built = spec.arm_config(config, name_)
+        assert built.model == demo.model and built.optimizer == demo.optimizer
+        assert built.train.batch_size == demo.train.batch_size
+        assert "model" not in config.arms[name_].overrides and "optimizer" not in config.arms[name_].overrides
+
+
+def test_table1_cpu_reads_cornell_and_its_baselines():
+    config = spec.load_config("configs/experiments/table1.py:cpu")
+    assert spec.arm_names(config) == ["kosmos_e", "grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d"]
+    assert all(spec.arm_config(config, a).data.source == "cornell" for a in config.arms)
+    assert spec.arm_config(config, "kosmos_e").data.build.kinds == "non"
+
+# -- the command and the launcher ------------------------------------------------------------------
+
+
+def command(*args):
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    return subprocess.run([sys.executable, "-m", "kosmos_jax.experiments", *args], capture_output=True, text=True,
+                          timeout=300, cwd=REPO, env=env)
+
+
+def test_command_check_only_and_errors(tmp_path):
+    done = command("--config=configs/experiments/table3.py:cpu", f"--workdir={tmp_path}", "--check_only")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert sorted(json.loads(line)["arm"] for line in done.stdout.splitlines()) == ["tlbra", "tlbra_patch", "xya", "xywha"]
+    bad = command("--config=configs/experiments/table3.py:cpu", f"--workdir={tmp_path}", "--config.run_arms=xyz")
+    assert bad.returncode == 1 and "error: unknown arm 'xyz'; expected some of xya, xywha, tlbra, tlbra_patch" in bad.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_slurm_array_aggregate_step():
+    env = {"PATH": os.environ["PATH"], "DRY_RUN": "1", "AGGREGATE": "1"}
+    done = subprocess.run(["bash", str(REPO / "launch" / "slurm_array.sbatch"), "configs/experiments/table1.py:paper",
+                           "runs/t1", "--config.init_from=/k2"], capture_output=True, text=True, env=env, cwd=REPO,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines()[1] == (
+        f"srun --ntasks=1 {REPO}/.venv/bin/python -m kosmos_jax.experiments --config=configs/experiments/table1.py:paper "
+        "--workdir=runs/t1 --aggregate_only --config.init_from=/k2")
+
+# -- end to end ------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_tiny_sweep_end_to_end(tmp_path):
+    """Two folds of the tiny KOSMOS-E (2 steps each) on synthetic scenes: trained, decoded, scored beside
+    the no-learning predictors, aggregated; the same command again trains nothing."""
+    overrides = {"data.root": str(tmp_path / "data"), "train.steps": 2, "train.checkpoint_every": 2,
+                 "train.eval_batches": 1, "optimizer.warmup_steps": 1}
+    config = experiment("tiny", {"kosmos_e": arm("configs/kosmos_e.py:tiny", overrides)}, schemes="image",
+                        protocols="honest", k=3, folds="0,1")
+    calls = []
+
+    def counted(config_, workdir):
+        calls.append(workdir)
+        return runner.default_train(config_, workdir)
+
+    summary = runner.run_experiment(config, tmp_path / "w", train=counted, command="pytest", say=lambda line: None)
+    assert summary["trained"] == 2 and summary["failed"] == [] and len(calls) == 2
+    for fold in (0, 1):
+        record = records.read_record(tmp_path / "w" / "kosmos_e" / f"honest-image-fold{fold}")
+        evaluated = json.loads((tmp_path / "w" / "kosmos_e" / f"honest-image-fold{fold}" / "eval" / "2" / "results.json").read_text())
+        assert record["accuracy"] == evaluated["accuracy"] and record["eval"]["step"] == 2
+        assert record["training_examples"] > 0 and record["no_learning"]["scores"]["gt_mean_oracle"]["instructions"] == (
+            evaluated["instructions"])
+    rows = {r["arm"]: r for r in summary["results"]["rows"]}
+    assert set(rows) == {"kosmos_e", "image_centre", "gt_mean_oracle"} and rows["kosmos_e"]["n_folds"] == 2
+    again = runner.run_experiment(config, tmp_path / "w", train=counted, say=lambda line: None)
+    assert again["skipped"] == 2 and len(calls) == 2
