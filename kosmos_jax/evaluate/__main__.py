@@ -1,7 +1,7 @@
 """Score a trained run's grasps from its greedy answers, with and without the grasp grammar.
 
     python -m kosmos_jax.evaluate --workdir=runs/demo [--step=N] [--split=test] [--json]
-        [--batch-size=16] [--max-examples=0]
+        [--batch-size=16] [--max-examples=0] [--overlays=N]
     python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
 
 Writes WORKDIR/eval/STEP/results.json, results.md and answers.jsonl (one line per example: both
@@ -26,6 +26,7 @@ import sys
 import time
 
 from kosmos_jax.evaluate.baseline_run import evaluate_baseline
+from kosmos_jax.evaluate.overlays import write_overlays
 from kosmos_jax.evaluate.run import RunError, open_run, read_description, run_task
 from kosmos_jax.evaluation.cornell_examples import cornell_examples
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
@@ -44,6 +45,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--max-examples", type=int, default=0, help="decode at most this many examples (0: all)")
     parser.add_argument("--json", action="store_true", help="print results.json as one line on stdout")
+    parser.add_argument("--overlays", type=int, default=0, metavar="N",
+                        help="draw N scored views of each instruction kind to eval/STEP/overlays/KIND.png (overlays.py)")
     args = parser.parse_args(argv)
     if args.batch_size < 1 or args.max_examples < 0:
         parser.error("--batch-size must be positive and --max-examples at least 0")
@@ -98,6 +101,7 @@ def main(argv=None) -> int:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
             results, rows, folder = evaluate(args)
             write(results, rows, folder)
+            write_overlays(args.workdir, results, rows, folder, args.overlays)
     except (RunError, FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
