@@ -15,7 +15,22 @@ it (tests/test_layout.py checks this):
   evaluation    8. scores under both protocols: of the baselines, of a model's decoded answers
   train         9. the sharded training step, optimiser, checkpoints, the trainer (it scores
                    decoded grasps with evaluation's code)
-  evaluate, demo  the commands `python -m kosmos_jax.evaluate` and `make demo` run
+  evaluate      the command `python -m kosmos_jax.evaluate`: a run's scores, overlays
+  experiments, predict  folds and data sizes; one grasp from a trained run (GraspPredictor)
+  demo, cli     `make demo`; the `kosmos-grasp` command in front of every entry point
+
+`from kosmos_jax import GraspPredictor` works; it is imported on first use, so `import kosmos_jax`
+does not import jax.
 """
 
+import importlib
+
 __version__ = "0.1.0"
+
+_LAZY = {"GraspPredictor": "kosmos_jax.predict.predictor", "Grasp": "kosmos_jax.predict.predictor"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'kosmos_jax' has no attribute {name!r}")

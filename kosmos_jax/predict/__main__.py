@@ -1,0 +1,96 @@
+"""`python -m kosmos_jax.predict` (`kosmos-grasp predict`): one photo, one instruction, one grasp.
+
+    python -m kosmos_jax.predict --workdir=runs/demo --image=photo.png --instruction="Grasp the red mug." \\
+        [--step=N] [--out=overlay.png] [--json]
+    python -m kosmos_jax.predict --pretrained=FOLDER --tokenizer=sentencepiece.bpe.model --image=... [--scheme=fairseq]
+
+Prints the grasp in the photo's pixels (one JSON line with --json) and, with --out, writes the
+photo with the grasp drawn in red and the instruction beneath. Without --instruction the model is
+asked with none (KOSMOS-E's NON kind). Bad input prints `error: ...` and exits 1; conversions of the
+image (grey, RGBA, 16-bit) print `warning: ...`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import sys
+import warnings
+
+from kosmos_jax.predict.errors import PredictError
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="kosmos-grasp predict", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(__doc__.splitlines()[2:]))
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--workdir", help="a training run's folder (run.json, tokenizer.model, checkpoints/)")
+    source.add_argument("--pretrained", help="an imported KOSMOS-2/KOSMOS-E folder (config.json, model.safetensors)")
+    parser.add_argument("--step", type=int, default=None, help="checkpoint step of --workdir (default: the newest)")
+    parser.add_argument("--tokenizer", help="with --pretrained: its SentencePiece model file")
+    parser.add_argument("--scheme", default="fairseq", choices=("fairseq", "native"),
+                        help="with --pretrained: the tokenizer's ids (fairseq: KOSMOS-2's; native: this project's)")
+    parser.add_argument("--image", required=True, help="the photo (PNG, JPEG, ...), any size")
+    parser.add_argument("--instruction", default=None,
+                        help="what to grasp, e.g. 'Grasp the red mug.' (omit it for no instruction: NON)")
+    parser.add_argument("--out", default=None, help="write the overlay PNG here")
+    parser.add_argument("--json", action="store_true", help="print the grasp as one JSON line")
+    args = parser.parse_args(argv)
+    if args.pretrained and not args.tokenizer:
+        parser.error("--pretrained needs --tokenizer (the SentencePiece model file)")
+    return args
+
+
+def run(args: argparse.Namespace) -> dict:
+    """Load, predict, draw: the printed record."""
+    from kosmos_jax.evaluation.overlay import NO_INSTRUCTION, overlay, write_png
+    from kosmos_jax.predict.images import load_image
+    from kosmos_jax.predict.predictor import GraspPredictor
+
+    photo = load_image(args.image)  # bad images fail before the model is loaded
+    if args.workdir:
+        predictor = GraspPredictor.from_workdir(args.workdir, args.step)
+    else:
+        predictor = GraspPredictor.from_pretrained(args.pretrained, args.tokenizer, scheme=args.scheme)
+    grasp = predictor.predict(photo, args.instruction)
+    record = {**grasp.to_dict(), "image": args.image, "instruction": args.instruction, "overlay": args.out}
+    if args.out:
+        zoom = max(1.0, 448 / min(photo.shape[:2]))  # small photos enlarged so the caption is legible
+        write_png(args.out, overlay(photo, grasp.rectangle(), (), args.instruction or NO_INSTRUCTION, zoom=zoom))
+    return record
+
+
+def describe(record: dict) -> str:
+    lines = [f"grasp at x={record['x']:.1f}, y={record['y']:.1f} px, theta={record['theta']:.3f} rad "
+             f"({math.degrees(record['theta']):.1f} deg), width {record['width']:.1f} px, jaw {record['jaw']:.1f} px",
+             f"answer: {record['answer']}"]
+    if record["overlay"]:
+        lines.append(f"overlay written to {record['overlay']}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            with contextlib.redirect_stdout(sys.stderr):  # stdout holds the grasp only
+                record = run(args)
+        except (PredictError, OSError) as error:
+            record = None
+            message = f"error: {error}"
+    for warning in caught:
+        if issubclass(warning.category, UserWarning):
+            print(f"warning: {warning.message}", file=sys.stderr)
+    if record is None:
+        print(message, file=sys.stderr)
+        return 1
+    print(json.dumps(record) if args.json else describe(record))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
