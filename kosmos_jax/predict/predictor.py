@@ -117,7 +117,7 @@ class GraspPredictor:
         folder = pathlib.Path(folder)
         if not (folder / "config.json").is_file():
             raise RunFolderError(f"{folder}: no config.json; a pretrained folder holds config.json and "
-                                 "model.safetensors (python -m kosmos_jax.models.weights exports one)")
+                                 "model.safetensors in transformers' layout (models.weights.save_pretrained writes one)")
         if not isinstance(tokenizer, Tokenizer):
             if not pathlib.Path(tokenizer).is_file():
                 raise RunFolderError(f"{tokenizer}: the tokenizer file is missing (give the SentencePiece model the "
