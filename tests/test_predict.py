@@ -189,6 +189,11 @@ def test_a_pretrained_folder_of_the_same_weights_predicts_the_same(predictor, wo
                                                 format_config=run.format_config, grasp_size=predictor.grasp_size,
                                                 mesh=one_device())
     assert pretrained.predict(photo[1], "Grasp the red mug.") == predictor.predict(photo[1], "Grasp the red mug.")
+    with pytest.raises(RunFolderError, match="scheme='native'"):  # the project's tokenizer read as KOSMOS-2's
+        GraspPredictor.from_pretrained(tmp_path / "exported", workdir / "tokenizer.model", scheme="fairseq")
+    (tmp_path / "exported" / "model.safetensors").unlink()
+    with pytest.raises(RunFolderError, match="neither model.safetensors"):
+        GraspPredictor.from_pretrained(tmp_path / "exported", workdir / "tokenizer.model", scheme="native")
     with pytest.raises(RunFolderError, match="tokenizer file is missing"):
         GraspPredictor.from_pretrained(tmp_path / "exported", tmp_path / "sentencepiece.bpe.model")
     with pytest.raises(RunFolderError, match="no config.json"):

@@ -122,11 +122,15 @@ class GraspPredictor:
             if not pathlib.Path(tokenizer).is_file():
                 raise RunFolderError(f"{tokenizer}: the tokenizer file is missing (give the SentencePiece model the "
                                      "weights were trained with, e.g. KOSMOS-2's sentencepiece.bpe.model)")
-            tokenizer = load_tokenizer(tokenizer, scheme=scheme, numbers=numbers)
+            try:
+                tokenizer = load_tokenizer(tokenizer, scheme=scheme, numbers=numbers)
+            except ValueError as error:  # e.g. a tokenizer of this project read as KOSMOS-2's
+                raise RunFolderError(f"{error} (KOSMOS-2's sentencepiece.bpe.model reads with scheme='fairseq', one "
+                                     "this project trained with scheme='native')") from None
         mesh = mesh if mesh is not None else make_mesh(1, -1, 1)
         try:
             model = load_pretrained(folder, compute_dtype=compute_dtype)
-        except FileNotFoundError as error:
+        except (FileNotFoundError, ValueError) as error:  # missing files, keys or shapes of another model
             raise RunFolderError(str(error)) from None
         params = jax.device_put(split_model(model)[1], NamedSharding(mesh, PartitionSpec()))
         return cls(model.config, params, tokenizer, format_config or FormatConfig(), mesh=mesh, source=str(folder),
