@@ -131,7 +131,8 @@ def fake_evaluate(workdir, step):
 
 
 def baseline_experiment(folds="0,1"):
-    arms = {"b1": arm("configs/baselines.py:tiny"), "b2": arm("configs/baselines.py:tiny", {"train.steps": 4})}
+    fits = {"train.batch_size": 8}  # over the suite's 8 fake devices
+    arms = {"b1": arm("configs/baselines.py:tiny", fits), "b2": arm("configs/baselines.py:tiny", {"train.steps": 4, **fits})}
     return experiment("unit", arms, schemes="image,object", protocols="honest", k=3, folds=folds)
 
 
@@ -187,6 +188,10 @@ def test_a_bad_config_fails_before_any_training(tmp_path):
     config.arms.b2.overrides.train.steps = 0
     with pytest.raises(ExperimentError, match="train.steps=0"):
         sweep(config, tmp_path, trainer)
+    config.arms.b2.overrides.train.steps = 4
+    config.arms.b1.overrides.train.batch_size = 3
+    with pytest.raises(ExperimentError, match="b1 honest-image fold 0: on this machine's .* does not split"):
+        sweep(config, tmp_path, trainer)
     assert trainer.calls == []
 
 
@@ -195,7 +200,7 @@ def test_fold_record(tmp_path):
     record = records.read_record(tmp_path / "b2" / "honest-object-fold1")
     assert record["accuracy"] == 20.0 and record["training_examples"] == 11 and record["task"] == "baseline"
     assert (record["arm"], record["protocol"], record["scheme"], record["fold"], record["k"]) == ("b2", "honest", "object", 1, 3)
-    assert record["overrides"] == {"train.steps": 4} and record["command"] == "pytest"
+    assert record["overrides"] == {"train.batch_size": 8, "train.steps": 4} and record["command"] == "pytest"
     assert record["machine"]["cpu_count"] == os.cpu_count() and record["machine"]["devices"]
     assert set(record["seconds"]) == {"train", "evaluate", "total"} and record["no_learning"] is None
 
@@ -386,12 +391,16 @@ def test_slurm_array_aggregate_step():
 
 @pytest.mark.slow
 def test_tiny_sweep_end_to_end(tmp_path):
-    """Two folds of the tiny KOSMOS-E (2 steps each) on synthetic scenes: trained, decoded, scored beside
-    the no-learning predictors, aggregated; the same command again trains nothing."""
+    """Two folds of the tiny KOSMOS-E and the tiny GR-ConvNet (2 steps each) on synthetic scenes:
+    trained, scored (KOSMOS-E beside the no-learning predictors), aggregated; the same command again
+    trains nothing."""
     overrides = {"data.root": str(tmp_path / "data"), "train.steps": 2, "train.checkpoint_every": 2,
                  "train.eval_batches": 1, "optimizer.warmup_steps": 1}
-    config = experiment("tiny", {"kosmos_e": arm("configs/kosmos_e.py:tiny", overrides)}, schemes="image",
-                        protocols="honest", k=3, folds="0,1")
+    baseline = {"data.root": str(tmp_path / "data"), "train.steps": 2, "train.checkpoint_every": 2,
+                "train.batch_size": 8}  # the suite's 8 fake devices
+    config = experiment("tiny", {"kosmos_e": arm("configs/kosmos_e.py:tiny", overrides),
+                                 "grconvnet": arm("configs/baselines.py:tiny", baseline)},
+                        schemes="image", protocols="honest", k=3, folds="0,1")
     calls = []
 
     def counted(config_, workdir):
@@ -399,14 +408,18 @@ def test_tiny_sweep_end_to_end(tmp_path):
         return runner.default_train(config_, workdir)
 
     summary = runner.run_experiment(config, tmp_path / "w", train=counted, command="pytest", say=lambda line: None)
-    assert summary["trained"] == 2 and summary["failed"] == [] and len(calls) == 2
+    assert summary["trained"] == 4 and summary["failed"] == [] and len(calls) == 4
     for fold in (0, 1):
         record = records.read_record(tmp_path / "w" / "kosmos_e" / f"honest-image-fold{fold}")
         evaluated = json.loads((tmp_path / "w" / "kosmos_e" / f"honest-image-fold{fold}" / "eval" / "2" / "results.json").read_text())
         assert record["accuracy"] == evaluated["accuracy"] and record["eval"]["step"] == 2
         assert record["training_examples"] > 0 and record["no_learning"]["scores"]["gt_mean_oracle"]["instructions"] == (
             evaluated["instructions"])
+    baseline_record = records.read_record(tmp_path / "w" / "grconvnet" / "honest-image-fold1")
+    assert baseline_record["task"] == "baseline" and baseline_record["no_learning"] is None
+    assert 0 <= baseline_record["accuracy"] <= 100 and baseline_record["training_examples"] > 0
     rows = {r["arm"]: r for r in summary["results"]["rows"]}
-    assert set(rows) == {"kosmos_e", "image_centre", "gt_mean_oracle"} and rows["kosmos_e"]["n_folds"] == 2
+    assert set(rows) == {"kosmos_e", "grconvnet", "image_centre", "gt_mean_oracle"}
+    assert rows["kosmos_e"]["n_folds"] == rows["grconvnet"]["n_folds"] == rows["image_centre"]["n_folds"] == 2
     again = runner.run_experiment(config, tmp_path / "w", train=counted, say=lambda line: None)
-    assert again["skipped"] == 2 and len(calls) == 2
+    assert again["skipped"] == 4 and len(calls) == 4

@@ -1,5 +1,6 @@
-"""Every arm of an experiment builds, without training: its model by jax.eval_shape, its optimiser, and
-its data settings as the build (or the baselines' fold views) would take them.
+"""Every arm of an experiment builds, without training: its model by jax.eval_shape, its optimiser, its
+batch over this machine's devices (the mesh it names), and its data settings as the build (or the
+baselines' fold views) would take them.
 
     reports = check_experiment(config)   # one dict per (arm, protocol, scheme); raises ExperimentError
 
@@ -24,7 +25,9 @@ from kosmos_jax.experiments import spec
 from kosmos_jax.experiments.spec import ExperimentError
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models.kosmos2 import abstract_model, param_count
+from kosmos_jax.train.mesh import make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
+from kosmos_jax.train.task import check_batch_layout
 from kosmos_jax.train.trainer import model_config
 
 VOCAB_MARGIN = 2048
@@ -121,6 +124,10 @@ def check_run(config, where: str) -> dict:
         make_optimizer(config.optimizer, config.train.steps)
     except (TypeError, ValueError) as error:
         raise ExperimentError(f"{where}: optimizer: {error}") from None
+    try:
+        check_batch_layout(config, make_mesh(config.mesh.data, config.mesh.fsdp, config.mesh.tensor))
+    except ValueError as error:
+        raise ExperimentError(f"{where}: on this machine's {jax.device_count()} devices: {error}") from None
     task = spec.task_of(config)
     report = check_kosmos_e(config, where) if task == "kosmos_e" else check_baseline(config, where)
     return {"task": task, "steps": config.train.steps, "batch_size": config.train.batch_size, **report}
