@@ -195,6 +195,21 @@ def test_a_bad_config_fails_before_any_training(tmp_path):
     assert trainer.calls == []
 
 
+def test_missing_source_or_weights_fail_before_any_training(tmp_path):
+    trainer = FakeTrainer()
+    config = baseline_experiment()
+    config.arms.b1.overrides.data = {"source": str(tmp_path / "nowhere")}
+    with pytest.raises(ExperimentError, match=f"arm 'b1': data source .*{tmp_path / 'nowhere'} does not exist"):
+        sweep(config, tmp_path, trainer)
+    paper = one_arm("configs/kosmos_e.py:paper", {"data.source": "synthetic"})
+    with pytest.raises(ExperimentError, match="arm 'a' starts from KOSMOS-2's weights: give --config.init_from"):
+        sweep(paper, tmp_path, trainer)
+    paper.init_from = str(tmp_path / "no_weights")
+    with pytest.raises(ExperimentError, match="init_from folder .*no_weights does not exist"):
+        sweep(paper, tmp_path, trainer)
+    assert trainer.calls == []
+
+
 def test_fold_record(tmp_path):
     sweep(baseline_experiment(), tmp_path, FakeTrainer())
     record = records.read_record(tmp_path / "b2" / "honest-object-fold1")

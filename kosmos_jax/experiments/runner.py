@@ -8,7 +8,9 @@ for the trained step are read, not decoded again), the no-learning predictors on
 instructions (KOSMOS-E arms), then the record fold.json. A fold with a record is skipped. A fold that
 fails is reported and the sweep goes on; a SIGTERM'd training stops the sweep (SweepStopped) after
 the trainer's checkpoint, and the same command resumes. Every fold's config is checked (checks.py:
-model shapes, optimiser, data settings) before anything trains, so a bad arm fails at once. `train` and `evaluate` are arguments so tests can count calls.
+model shapes, optimiser, batch layout, data settings) and each arm's data source and KOSMOS-2
+folder looked up before anything trains, so a bad arm fails at once. A fold's seconds are those of
+the invocation that finished it (its record's train.resumed_from says whether an earlier one began it). `train` and `evaluate` are arguments so tests can count calls.
 """
 
 from __future__ import annotations
@@ -59,6 +61,24 @@ def no_learning_scores(workdir: pathlib.Path) -> dict | None:
     identity = description["data_identity"]
     return {"tests": no_learning.digest(test),
             "scores": no_learning.score(test, identity["build"]["protocol"], identity["format"]["image_size"])}
+
+
+def check_startable(arm_config, name: str) -> None:
+    """What training needs on this machine before it starts: the source folder (a synthetic set is
+    drawn on first use) and, for an arm that must start from KOSMOS-2, the weights' folder."""
+    data = arm_config.data
+    if data.source != "synthetic":
+        from kosmos_jax.train.data import source_folder
+
+        try:
+            source_folder(data)
+        except FileNotFoundError as error:
+            raise spec.ExperimentError(f"arm {name!r}: {error}") from None
+    if arm_config.get("require_init") and not arm_config.get("init_from"):
+        raise spec.ExperimentError(f"arm {name!r} starts from KOSMOS-2's weights: give --config.init_from=FOLDER "
+                                   "(config.json, model.safetensors, sentencepiece.bpe.model)")
+    if arm_config.get("init_from") and not pathlib.Path(arm_config.init_from).is_dir():
+        raise spec.ExperimentError(f"arm {name!r}: init_from folder {arm_config.init_from} does not exist")
 
 
 def now() -> str:
@@ -117,6 +137,8 @@ def run_experiment(config, workdir, *, train: Callable | None = None, evaluate: 
     fold_configs = {run: spec.fold_config(arms[run.arm], run, config.k) for run in chosen}
     for run, fold_config in fold_configs.items():
         checks.check_run(fold_config, run.name)
+    for name, arm in arms.items():
+        check_startable(arm, name)
     trained, skipped, failed = 0, 0, []
     say(f"[{now()}] experiment {config.name}: {len(chosen)} folds in {root}")
     for number, run in enumerate(chosen, 1):
