@@ -11,10 +11,11 @@ instructions (the baselines' test views are the same photos and crops, photos wi
 
 cpu: Cornell photos (../shared/data/cornell); KOSMOS-E from configs/kosmos_e.py:demo (trained from
 scratch) with its steps cut to fit a fold in about 10 minutes on 2 shared cores (a demo run here
-under other load: 0.8 to 2.6 s a step at batch 32, median 1.0; dataset build and evaluation a
-minute or two); the baselines' steps cut the same way from their measured 8.7 s (GR-ConvNet) and
-1.4 s (GG-CNN2) a step. A (protocol, scheme, fold) of all four arms takes about 35 minutes, so the
-cpu variant runs folds 0, 1 and 2 of 5 by default (about 7 hours); --config.folds= runs all five.
+under other load: 0.8 to 2.6 s a step at batch 32, median 1.0; the build of the 101 photos and the
+evaluation a minute or two); the baselines' steps cut the same way from the 8.7 s (GR-ConvNet) and
+1.4 s (GG-CNN2) a step configs/baselines.py measured. These are estimates from step times, not
+timed sweeps: a (protocol, scheme, fold) of all four arms should take about 35 minutes, so the cpu
+variant runs folds 0, 1 and 2 of 5 by default (about 7 hours); --config.folds= runs all five.
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines
 with a longer schedule, every fold.
 """
