@@ -66,3 +66,44 @@ def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
         assert 2 in checkpoints.all_steps() and checkpoints.latest_step() == STEPS
     finally:
         checkpoints.close()
+
+
+
+def test_microbatches_add_up_to_the_whole_batch_s_step():
+    """GG-CNN2 (no BatchNorm, so no per-microbatch statistics): one step on 8 views makes the same
+    update whole (no scan) as in 2 or 4 microbatches (the unrolled scan)."""
+    import importlib.util
+
+    import jax
+
+    from kosmos_jax.baselines.family import BaselineConfig, make_family
+    from kosmos_jax.train.baseline_task import initial_state, make_baseline_step
+    from kosmos_jax.train.mesh import make_mesh, replicated
+    from kosmos_jax.train.optimizer import make_optimizer
+
+    spec = importlib.util.spec_from_file_location("baseline_configs", REPO / "configs" / "baselines.py")
+    configs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(configs)
+    optimizer = configs.get_config("ggcnn2_d").optimizer
+    family = make_family(BaselineConfig(network="ggcnn2", mode="depth"))
+    mesh = make_mesh(1, 1, 1, devices=jax.devices()[:1])
+    tx, schedule = make_optimizer(optimizer, 10)
+    rng = np.random.default_rng(0)
+    grasps = np.zeros((8, 4, 5), np.float32)
+    grasps[:, :2] = np.concatenate([rng.uniform(20, 44, (8, 2, 2)), rng.uniform(8, 20, (8, 2, 2)),
+                                    rng.uniform(-1.5, 1.5, (8, 2, 1))], axis=-1)
+    batch = {"image": rng.uniform(-0.5, 0.5, (8, 64, 64, 1)).astype(np.float32), "grasps": grasps,
+             "mask": np.repeat([[True, True, False, False]], 8, axis=0)}
+    results = {}
+    for microbatches in (1, 2, 4):
+        state = initial_state(family, tx, 0)
+        sharding = jax.tree.map(lambda _: replicated(mesh), state)
+        step = make_baseline_step(family, tx, schedule, mesh, sharding, microbatches=microbatches)
+        for _ in range(2):  # the first step's learning rate is 0 (warm-up)
+            state, metrics = step(jax.device_put(state, sharding), batch)
+        results[microbatches] = (float(metrics["loss"]), jax.tree.leaves(jax.device_get(state.params)))
+    loss, params = results[1]
+    for microbatches in (2, 4):
+        assert results[microbatches][0] == pytest.approx(loss, rel=1e-5)
+        for whole, split in zip(params, results[microbatches][1]):
+            np.testing.assert_allclose(split, whole, rtol=1e-4, atol=1e-6)
