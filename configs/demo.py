@@ -1,17 +1,20 @@
-"""The demo of `make demo`: no-learning baselines on synthetic data (and Cornell when present).
+"""The demo of `make demo`: KOSMOS-E trained on synthetic scenes, beside the no-learning baselines.
 
-    python -m kosmos_jax.demo --config=configs/demo.py             # 60 synthetic photos
-    python -m kosmos_jax.demo --config=configs/demo.py:tiny        # a laptop smoke run
-    python -m kosmos_jax.demo --config=configs/demo.py --config.photos=200 --config.seed=1
+    python -m kosmos_jax.demo --config=configs/demo.py             # train the demo model, then the tables
+    python -m kosmos_jax.demo --config=configs/demo.py:tiny        # a laptop smoke run (tiny model, 24 photos)
+    python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=   # baselines only
 """
 
 import ml_collections
 
 
 def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
+    tiny = arg == "tiny"
     config = ml_collections.ConfigDict()
-    config.out = "demo_out"  # relative to the repository root
-    config.photos = 24 if arg == "tiny" else 60  # synthetic photos to make (object-wise needs >= 5 objects)
+    config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
+    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo"  # "": no training
+    config.steps = 0  # 0: the training config's own train.steps
+    config.photos = 24 if tiny else 60  # synthetic photos of the no-learning table (object-wise needs >= 5 objects)
     config.seed = 0
     config.cornell = ""  # a Cornell-format folder; "" = ../shared/data/cornell when it exists
     config.folds = 5

@@ -143,9 +143,10 @@ def demo_config(tmp_path, **overrides):
 
 def test_demo_runs_on_its_own_synthetic_data(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(demo, "DEFAULT_CORNELL", tmp_path / "absent")
-    demo.run(demo_config(tmp_path))
-    rows = json.loads((tmp_path / "baselines.json").read_text())
+    demo.run(demo_config(tmp_path, train_config=""))
+    rows = json.loads((tmp_path / "results.json").read_text())
     assert {r["data"] for r in rows} == {"synthetic"}
+    assert not (tmp_path / "run").exists()  # train_config "" trains nothing
     combos = {(r["protocol"], r["split"], r["backend"], r["predictor"]) for r in rows}
     assert len(combos) == 2 * 2 * 2 * 2
     oracle = [r for r in rows if r["predictor"] == "gt_mean_oracle" and r["protocol"] == "honest"]
@@ -184,3 +185,22 @@ def test_demo_never_deletes_a_foreign_folder_in_its_way(tmp_path):
 def test_demo_refuses_a_missing_cornell_folder(tmp_path):
     with pytest.raises(FileNotFoundError, match="nowhere"):
         demo.run(demo_config(tmp_path, cornell=str(tmp_path / "nowhere")))
+
+
+@pytest.mark.slow  # a tiny training run, its build and decoding: about 90 s on 2 loaded cores
+def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instructions(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(demo, "DEFAULT_CORNELL", tmp_path / "absent")
+    demo.run(demo_config(tmp_path, steps=6))
+    rows = json.loads((tmp_path / "results.json").read_text())
+    trained = [r for r in rows if r["split"].endswith("-fold0")]
+    assert {r["predictor"] for r in trained} == {"kosmos_e", "image_centre", "gt_mean_oracle"}
+    for scene in {r["scene"] for r in trained}:
+        counts = {r["instructions"] for r in trained if r["scene"] == scene}
+        assert len(counts) == 1, f"scene {scene}: the predictors were scored on different instructions"
+    model = {r["scene"]: r for r in trained if r["predictor"] == "kosmos_e"}
+    assert "all" in model and model["all"]["step"] == 6
+    results = json.loads((tmp_path / "run" / "eval" / "6" / "results.json").read_text())
+    assert results["accuracy"] == pytest.approx(model["all"]["mean"], abs=0.01)
+    assert "goal (kosmos_e >= image_centre + 20" in capsys.readouterr().out
+    demo.run(demo_config(tmp_path, steps=6))  # a finished run is reused, not trained again
+    assert json.loads((tmp_path / "results.json").read_text())[: len(trained)] == trained
