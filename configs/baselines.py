@@ -87,17 +87,17 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     config.data = data_config()
     config.optimizer = optimizer_config()
     config.train = train_config()
-    # Measured (one train step, batch 8, 2 shared cores at load ~6): GR-ConvNet c=16 RGB-D 8.7 s,
-    # GG-CNN2 depth 1.4 s; so 150 and 800 steps are about 20 minutes.
+    # benchmarks/baselines.py (one train step, batch 8, 2 shared cores): GR-ConvNet c=16 RGB-D 1.5 s,
+    # GG-CNN2 depth 0.46 s; so 600 and 2400 steps are about 15 and 18 minutes.
     if variant == "grconvnet_rgbd":
         config.model = model_config("grconvnet", "rgbd")
-        config.train = train_config(steps=150, checkpoint_every=50)
+        config.train = train_config(steps=600, checkpoint_every=200)
     elif variant == "grconvnet_rgb":
         config.model = model_config("grconvnet", "rgb")
-        config.train = train_config(steps=150, checkpoint_every=50)
+        config.train = train_config(steps=600, checkpoint_every=200)
     elif variant == "ggcnn2_d":
         config.model = model_config("ggcnn2", "depth")
-        config.train = train_config(steps=800, checkpoint_every=200)
+        config.train = train_config(steps=2400, checkpoint_every=600)
     else:
         config.model = model_config("grconvnet", "rgbd", channels=4)
         config.data = data_config(source="synthetic", synthetic_photos=8, folds=3, copies=2)

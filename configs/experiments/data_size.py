@@ -20,7 +20,7 @@ augmentations, 100 to 10,000 photos; both protocols, every fold.
 
 from kosmos_jax.experiments.spec import arm, experiment
 
-CPU_STEPS = 400
+CPU_STEPS = 300
 VARIANTS = ("cpu", "paper")
 
 

@@ -19,7 +19,7 @@ paper: configs/kosmos_e.py:paper (Cornell with KOSMOS-E's annotations, KOSMOS-2 
 from kosmos_jax.experiments.spec import arm, experiment
 
 MIXES = ("non", "single", "multi", "all")
-CPU_STEPS = 400
+CPU_STEPS = 300
 VARIANTS = ("cpu", "paper")
 
 

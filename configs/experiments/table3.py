@@ -12,7 +12,7 @@ KOSMOS-2 initialisation: --config.init_from), both protocols, image-wise, every 
 from kosmos_jax.experiments.spec import arm, experiment
 
 REPRESENTATIONS = ("xya", "xywha", "tlbra", "tlbra_patch")
-CPU_STEPS = 400
+CPU_STEPS = 300
 VARIANTS = ("cpu", "paper")
 
 

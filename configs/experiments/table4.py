@@ -14,7 +14,7 @@ from kosmos_jax.experiments.spec import arm, experiment
 
 OUTPUTS = {"individual": True, "joint": False}
 ANGLES = {"code": True, "radians": False}
-CPU_STEPS = 400
+CPU_STEPS = 300
 VARIANTS = ("cpu", "paper")
 
 

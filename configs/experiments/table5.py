@@ -15,7 +15,7 @@ from kosmos_jax.experiments.spec import arm, experiment
 
 LOSSES = {"target": "target", "all": "instruction"}
 ANGLES = {"code": True, "radians": False}
-CPU_STEPS = 400
+CPU_STEPS = 300
 VARIANTS = ("cpu", "paper")
 
 
