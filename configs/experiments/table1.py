@@ -10,12 +10,10 @@ views; the runner adds the image-centre and ground-truth-mean rows, scored on KO
 instructions (the baselines' test views are the same photos and crops, photos without depth aside).
 
 cpu: Cornell photos (../shared/data/cornell); KOSMOS-E from configs/kosmos_e.py:demo (trained from
-scratch) with its steps cut to fit a fold in about 10 minutes on 2 shared cores (a demo run here
-under other load: 0.8 to 2.6 s a step at batch 32, median 1.0; the build of the 101 photos and the
-evaluation a minute or two); the baselines' steps cut the same way from the 8.7 s (GR-ConvNet) and
-1.4 s (GG-CNN2) a step configs/baselines.py measured. These are estimates from step times, not
-timed sweeps: a (protocol, scheme, fold) of all four arms should take about 35 minutes, so the cpu
-variant runs folds 0, 1 and 2 of 5 by default (about 7 hours); --config.folds= runs all five.
+scratch) for 300 steps, GR-ConvNet for 120 and GG-CNN2 for 400 (batch 8). Measured here (2 cores
+shared with other work, 2026-11-24): a KOSMOS-E fold took 383 to 451 s with its build and
+evaluation; the baselines' steps are 1.5 s and 0.46 s (benchmarks/baselines.py). Fold 0 of 5 by
+default, both schemes and protocols (16 runs, about an hour and a half); --config.folds= runs all five.
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines
 with a longer schedule, every fold.
 """
