@@ -13,7 +13,8 @@
 # lacks, and the project's pins of pure-Python ones (optax, orbax-checkpoint, ...), travel as
 # wheels in the git-ignored folder .whl (name it in the call's `carry`). They are installed here with
 # --no-deps into /tmp/site, which goes first on PYTHONPATH, so they shadow the machine's versions
-# while jax, jaxlib, numpy and opencv stay the machine's own (their wheels are too big to carry).
+# while jax, jaxlib, numpy, opencv and matplotlib stay the machine's own (the first four too big to carry;
+# matplotlib draws only the data-size plot).
 #
 # Filling .whl on a machine with pip and a network (python 3.12, manylinux x86_64), one version of each:
 #     launch/device_env.sh --download

@@ -15,7 +15,7 @@ import pytest
 REPO = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "launch" / "device_env.sh"
 # Binary wheels too big to carry: the machine's own versions are used (jax 0.11.2 and its numpy).
-MACHINE_OWN = {"jax", "jaxlib", "numpy", "opencv-python-headless", "safetensors"}
+MACHINE_OWN = {"jax", "jaxlib", "numpy", "opencv-python-headless", "safetensors", "matplotlib"}
 # flax 0.12.8 does not import under jax 0.11 (jax.experimental.hijax.HiPrimitive is gone): 0.12.10 travels.
 NOT_THE_PIN = {"flax": "0.12.10"}
 
