@@ -9,7 +9,7 @@ training examples, log x, error bars the std over folds) and data_size.json; x i
 training-split example count as its build recorded it.
 
 cpu: synthetic scenes, instruction kind NON, KOSMOS-E from configs/kosmos_e.py:demo trained from
-scratch for the same 300 steps in every arm (sized for about 7 minutes a fold on 2 shared
+scratch for the same 200 steps in every arm (sized for about 5 minutes a fold on 2 shared
 cores, see table1.py), so the arms differ in data, not in compute: augmentations 2, 4, 8, 16 of 300 photos and
 100, 300, 1000, 3000 photos of 4 augmentations (about 640 to 19,000 training examples); honest
 protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds, about 7 hours).
@@ -20,7 +20,7 @@ augmentations, 100 to 10,000 photos; both protocols, every fold.
 
 from kosmos_jax.experiments.spec import arm, experiment
 
-CPU_STEPS = 300
+CPU_STEPS = 200
 VARIANTS = ("cpu", "paper")
 
 
