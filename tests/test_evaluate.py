@@ -186,3 +186,22 @@ def test_every_photo_of_a_cornell_folder_is_scored(workdir, tmp_path):
     assert results["photos"] == 3 and results["instructions"] == 3 - results["views_without_grasps"]
     assert sum(g["examples"] for g in results["by_kind"].values()) == results["examples"] == 2 * results["instructions"]
     assert (workdir / "eval" / "2" / "cornell-photos" / "results.json").is_file()
+
+
+def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(workdir, capsys):
+    from kosmos_jax.evaluate import image_use
+
+    np.testing.assert_array_equal(image_use.other_images(np.arange(3)), [1, 2, 0])
+    result = image_use.image_use(workdir, batches=4, batch_size=8)  # the tiny config's eval batches
+    logged = [r for r in read_metrics(workdir) if r.get("split") == "test" and "loss" in r][-1]
+    assert result["step"] == 2 and result["tokens"] == logged["tokens"] > 0
+    np.testing.assert_allclose(result["loss"]["own"], logged["loss"], rtol=1e-5)  # the trainer's own eval
+    assert result["loss"]["other"] != result["loss"]["own"] != result["loss"]["blank"]  # pixels reach the logits
+    assert image_use.main([f"--workdir={workdir}", "--batch-size=8", "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((workdir / "eval" / "2" / "image_use.json").read_text())
+    np.testing.assert_allclose(printed["loss"]["own"], result["loss"]["own"], rtol=1e-6)
+    assert image_use.main([f"--workdir={workdir}", "--batch-size=1"]) == 1
+    assert "batch_size=1" in capsys.readouterr().err
+    assert image_use.main([f"--workdir={workdir}", "--step=7"]) == 1
+    assert "no checkpoint of step 7" in capsys.readouterr().err

@@ -1,0 +1,111 @@
+"""Does a trained KOSMOS-E read its image? The loss on the answer tokens of a split three ways: each
+example with its own image, with another photo's image (the batch's images rolled by one) and with
+a blank image.
+
+    python -m kosmos_jax.evaluate.image_use --workdir=runs/demo [--step=N] [--split=test] [--batches=4] [--json]
+
+A model that answers from what it sees has a clearly lower loss on its own images than on another
+photo's. Equal losses mean its answers do not depend on the photo: it has learned the marginal
+distribution of the answers, whatever its grasp accuracy. Writes WORKDIR/eval/STEP/image_use.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from kosmos_jax.evaluate.run import RunError, open_run
+from kosmos_jax.models.kosmos2 import abstract_model
+from kosmos_jax.train import data as data_lib
+from kosmos_jax.train.loss import token_sums
+from kosmos_jax.train.state import split_model
+from kosmos_jax.train.step import logits
+
+IMAGES = ("own", "other", "blank")
+
+
+def other_images(images: np.ndarray) -> np.ndarray:
+    """Each row's image replaced by the next row's (the last row takes the first's)."""
+    return np.roll(images, -1, axis=0)
+
+
+def make_sums(model_config):
+    graphdef, _, rest = split_model(abstract_model(model_config))
+
+    @jax.jit
+    def sums(params, batch):
+        model = nnx.view(nnx.merge(graphdef, params, rest), deterministic=True)
+        return token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
+
+    return sums
+
+
+def image_use(workdir, step: int | None = None, split: str = "test", batches: int = 4, batch_size: int = 16) -> dict:
+    """{"step", "split", "examples", "tokens", "loss": {own, other, blank}, "accuracy": {...}}:
+    mean loss (nats) and next-token accuracy on the answer tokens of the first `batches` batches."""
+    if batches < 0 or batch_size < 2:
+        raise ValueError(f"batches={batches} must be >= 0 (0: the whole split) and batch_size={batch_size} >= 2 "
+                         "(another photo's image comes from the same batch)")
+    run = open_run(workdir)
+    step, params = run.params(step)
+    sums = make_sums(run.model_config)
+    totals = {name: {"loss_sum": 0.0, "correct": 0, "tokens": 0} for name in IMAGES}
+    examples = 0
+    for batch in data_lib.eval_batches(run.split(split), batch_size, 0, 1, batches):
+        examples += int(np.sum(batch["example_index"] >= 0))
+        images = {"own": batch["image"], "other": other_images(batch["image"]), "blank": np.zeros_like(batch["image"])}
+        for name in IMAGES:
+            arrays = {key: jnp.asarray(batch[key]) for key in ("tokens", "loss_mask", "image_mask", "length")}
+            result = sums(params, {**arrays, "image": jnp.asarray(images[name])})
+            for key in totals[name]:
+                totals[name][key] += result[key].item()
+    tokens = totals["own"]["tokens"]
+    if not tokens:
+        raise ValueError(f"split {split!r} of {workdir} has no answer tokens to score")
+    return {"step": step, "split": split, "examples": examples, "tokens": tokens,
+            "loss": {name: totals[name]["loss_sum"] / tokens for name in IMAGES},
+            "accuracy": {name: totals[name]["correct"] / tokens for name in IMAGES}}
+
+
+def summary(result: dict) -> str:
+    loss, accuracy = result["loss"], result["accuracy"]
+    gap = loss["other"] - loss["own"]
+    lines = [f"step {result['step']}, {result['split']} split, {result['examples']} examples, "
+             f"{result['tokens']} answer tokens"]
+    lines += [f"  {name:5s} image: loss {loss[name]:.4f} nats a token, next-token accuracy {accuracy[name]:.4f}"
+              for name in IMAGES]
+    verdict = ("its answers depend on the photo" if gap > 0.01 * max(loss["own"], 1e-6)
+               else "its answers do not depend on the photo (another photo's image scores as well as its own)")
+    lines.append(f"another photo's image costs {gap:+.4f} nats a token: {verdict}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate.image_use", description=__doc__.split("\n")[0])
+    parser.add_argument("--workdir", required=True)
+    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
+    parser.add_argument("--split", default="test")
+    parser.add_argument("--batches", type=int, default=4, help="batches scored (0: the whole split)")
+    parser.add_argument("--batch-size", type=int, default=16)
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
+    args = parser.parse_args(argv)
+    try:
+        result = image_use(args.workdir, args.step, args.split, args.batches, args.batch_size)
+    except (RunError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    folder = open_run(args.workdir).workdir / "eval" / str(result["step"])
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "image_use.json").write_text(json.dumps(result, indent=1) + "\n")
+    print(json.dumps(result) if args.json else summary(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
