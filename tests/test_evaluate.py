@@ -205,3 +205,28 @@ def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(wo
     assert "batch_size=1" in capsys.readouterr().err
     assert image_use.main([f"--workdir={workdir}", "--step=7"]) == 1
     assert "no checkpoint of step 7" in capsys.readouterr().err
+
+
+def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, capsys):
+    import jax.numpy as jnp
+    import optax
+    from flax import nnx
+
+    from kosmos_jax.experiments import vision_probe as vp
+    from kosmos_jax.train import data as data_lib
+
+    run = open_run(workdir)
+    batch = next(data_lib.eval_batches(run.split("train"), 8, 0, 1, 1))
+    images, centres = jnp.asarray(batch["image"]), jnp.asarray(batch["grasp"][:, :2] / batch["image"].shape[1])
+    for readout in vp.READOUTS:
+        probe = vp.CentreProbe(run.model_config.vision, readout, nnx.Rngs(0))
+        optimizer = nnx.Optimizer(probe, optax.adamw(3e-3), wrt=nnx.Param)
+        losses = [float(vp.train_step(probe, optimizer, images, centres)) for _ in range(30)]
+        assert losses[-1] < 0.5 * losses[0], (readout, losses[0], losses[-1])  # one batch can be fitted
+
+    result = vp.vision_probe(workdir, steps=2, batch_size=8)
+    assert result["test_examples"] == len(run.split("test")) and result["train_examples_seen"] == 16
+    assert all(np.isfinite(result["mae_px"])) and all(0 <= e < 224 for e in result["mean_guess_mae_px"])
+    assert vp.main([f"--workdir={workdir}", "--steps=0"]) == 1 and "steps=0" in capsys.readouterr().err
+    assert vp.main([f"--workdir={workdir}", "--steps=1", "--batch-size=4", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["steps"] == 1
