@@ -227,6 +227,7 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     result = vp.vision_probe(workdir, steps=2, batch_size=8)
     assert result["test_examples"] == len(run.split("test")) and result["train_examples_seen"] == 16
     assert all(np.isfinite(result["mae_px"])) and all(0 <= e < 224 for e in result["mean_guess_mae_px"])
+    assert np.all(np.asarray(result["centres_px"]["test"]["std"]) >= 0)
     assert vp.main([f"--workdir={workdir}", "--steps=0"]) == 1 and "steps=0" in capsys.readouterr().err
     assert vp.main([f"--workdir={workdir}", "--steps=1", "--batch-size=4", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["steps"] == 1

@@ -58,8 +58,9 @@ def train_step(probe, optimizer, images, centres):
 
 def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size: int = 32, lr: float = 1e-3,
                  seed: int = 0, progress=None) -> dict:
-    """{"steps", "readout", "train_examples_seen", "test_examples", "mae_px": [x, y], "mean_guess_mae_px": [x, y]}:
-    mean absolute error of the centre on the test split, in stored-view pixels."""
+    """{"steps", "readout", "train_examples_seen", "test_examples", "mae_px": [x, y], "mean_guess_mae_px": [x, y],
+    "centres_px": {split: {"mean", "std"}}}: mean absolute error of the centre on the test split, in
+    stored-view pixels, and the spread of the target centres the probe trained and was tested on."""
     if readout not in READOUTS:
         raise ValueError(f"readout {readout!r}: expected one of {READOUTS}")
     if steps < 1 or batch_size < 1:
@@ -77,17 +78,19 @@ def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size
         if progress and (step % 50 == 0 or step == steps):
             progress(f"step {step}/{steps}: train L1 {float(loss) * side:.1f} px")
     mean_guess = np.concatenate(seen).mean(0)
-    errors, guess_errors = [], []
+    errors, tested = [], []
     for batch in data_lib.eval_batches(run.split("test"), batch_size, 0, 1):
         keep = batch["example_index"] >= 0
         side = batch["image"].shape[1]
         predicted = np.asarray(probe(jnp.asarray(batch["image"]))) * side
         errors.append(np.abs(predicted - batch["grasp"][:, :2])[keep])
-        guess_errors.append(np.abs(mean_guess - batch["grasp"][:, :2])[keep])
-    errors, guess_errors = np.concatenate(errors), np.concatenate(guess_errors)
-    return {"steps": steps, "readout": readout, "batch_size": batch_size, "train_examples_seen": steps * batch_size,
+        tested.append(batch["grasp"][keep, :2])
+    errors, tested, seen = np.concatenate(errors), np.concatenate(tested), np.concatenate(seen)
+    spread = lambda centres: {"mean": centres.mean(0).tolist(), "std": centres.std(0).tolist()}
+    return {"steps": steps, "readout": readout, "batch_size": batch_size, "train_examples_seen": len(seen),
             "test_examples": len(errors), "mae_px": errors.mean(0).tolist(),
-            "mean_guess_mae_px": guess_errors.mean(0).tolist()}
+            "mean_guess_mae_px": np.abs(tested - mean_guess).mean(0).tolist(),
+            "centres_px": {"train": spread(seen), "test": spread(tested)}}  # where the answers lie in the views
 
 
 def main(argv=None) -> int:
