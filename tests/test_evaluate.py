@@ -218,11 +218,11 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     run = open_run(workdir)
     batch = next(data_lib.eval_batches(run.split("train"), 8, 0, 1, 1))
     images, centres = jnp.asarray(batch["image"]), jnp.asarray(batch["grasp"][:, :2] / batch["image"].shape[1])
-    for readout in vp.READOUTS:
+    for readout, lr in (("patches", 1e-4), ("cls", 1e-3)):  # the class token alone needs the larger steps
         probe = vp.CentreProbe(run.model_config.vision, readout, nnx.Rngs(0))
-        optimizer = nnx.Optimizer(probe, optax.adamw(3e-3), wrt=nnx.Param)
-        losses = [float(vp.train_step(probe, optimizer, images, centres)) for _ in range(30)]
-        assert losses[-1] < 0.5 * losses[0], (readout, losses[0], losses[-1])  # one batch can be fitted
+        optimizer = nnx.Optimizer(probe, optax.adamw(lr), wrt=nnx.Param)
+        losses = [float(vp.train_step(probe, optimizer, images, centres)) for _ in range(40)]
+        assert np.mean(losses[-10:]) < 0.5 * losses[0], (readout, losses)  # one batch can be fitted
 
     result = vp.vision_probe(workdir, steps=2, batch_size=8)
     assert result["test_examples"] == len(run.split("test")) and result["train_examples_seen"] == 16
