@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import pathlib
 import sys
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-from flax import nnx
 
 from kosmos_jax.evaluate.run import RunError, open_run
-from kosmos_jax.models.kosmos2 import abstract_model
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train.loss import token_sums
-from kosmos_jax.train.state import split_model
-from kosmos_jax.train.step import logits
+from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.train.step import BATCH_KEYS, make_eval_step
 
 IMAGES = ("own", "other", "blank")
 
@@ -35,36 +32,27 @@ def other_images(images: np.ndarray) -> np.ndarray:
     return np.roll(images, -1, axis=0)
 
 
-def make_sums(model_config):
-    graphdef, _, rest = split_model(abstract_model(model_config))
-
-    @jax.jit
-    def sums(params, batch):
-        model = nnx.view(nnx.merge(graphdef, params, rest), deterministic=True)
-        return token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
-
-    return sums
-
-
 def image_use(workdir, step: int | None = None, split: str = "test", batches: int = 4, batch_size: int = 16) -> dict:
     """{"step", "split", "examples", "tokens", "loss": {own, other, blank}, "accuracy": {...}}:
     mean loss (nats) and next-token accuracy on the answer tokens of the first `batches` batches."""
-    if batches < 0 or batch_size < 2:
+    devices = jax.device_count()
+    if batches < 0 or batch_size < 2 or batch_size % devices:
         raise ValueError(f"batches={batches} must be >= 0 (0: the whole split) and batch_size={batch_size} >= 2 "
-                         "(another photo's image comes from the same batch)")
+                         f"(another photo's image comes from the same batch) and a multiple of the {devices} devices")
     run = open_run(workdir)
-    step, params = run.params(step)
-    sums = make_sums(run.model_config)
+    mesh = make_mesh(1, -1, 1)
+    step, params = run.params(step, mesh)
+    eval_step, sharding = make_eval_step(run.model_config, mesh), batch_sharding(mesh)
     totals = {name: {"loss_sum": 0.0, "correct": 0, "tokens": 0} for name in IMAGES}
     examples = 0
     for batch in data_lib.eval_batches(run.split(split), batch_size, 0, 1, batches):
         examples += int(np.sum(batch["example_index"] >= 0))
+        rest = {key: jax.device_put(batch[key], sharding) for key in BATCH_KEYS if key != "image"}
         images = {"own": batch["image"], "other": other_images(batch["image"]), "blank": np.zeros_like(batch["image"])}
         for name in IMAGES:
-            arrays = {key: jnp.asarray(batch[key]) for key in ("tokens", "loss_mask", "image_mask", "length")}
-            result = sums(params, {**arrays, "image": jnp.asarray(images[name])})
+            sums = jax.device_get(eval_step(params, {**rest, "image": jax.device_put(images[name], sharding)}))
             for key in totals[name]:
-                totals[name][key] += result[key].item()
+                totals[name][key] += sums[key].item()
     tokens = totals["own"]["tokens"]
     if not tokens:
         raise ValueError(f"split {split!r} of {workdir} has no answer tokens to score")
@@ -100,7 +88,7 @@ def main(argv=None) -> int:
     except (RunError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    folder = open_run(args.workdir).workdir / "eval" / str(result["step"])
+    folder = pathlib.Path(args.workdir) / "eval" / str(result["step"])
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "image_use.json").write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(result) if args.json else summary(result))
