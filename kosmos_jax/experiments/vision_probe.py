@@ -60,6 +60,11 @@ def train_step(probe, optimizer, images, centres):
     return value
 
 
+@nnx.jit
+def predict(probe, images):
+    return probe(images)
+
+
 def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size: int = 32, lr: float = 1e-4,
                  seed: int = 0, progress=None) -> dict:
     """{"steps", "readout", "train_examples_seen", "test_examples", "mae_px": [x, y], "mean_guess_mae_px": [x, y],
@@ -86,7 +91,7 @@ def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size
     for batch in data_lib.eval_batches(run.split("test"), batch_size, 0, 1):
         keep = batch["example_index"] >= 0
         side = batch["image"].shape[1]
-        predicted = np.asarray(probe(jnp.asarray(batch["image"]))) * side
+        predicted = np.asarray(predict(probe, jnp.asarray(batch["image"]))) * side
         errors.append(np.abs(predicted - batch["grasp"][:, :2])[keep])
         tested.append(batch["grasp"][keep, :2])
     errors, tested, seen = np.concatenate(errors), np.concatenate(tested), np.concatenate(seen)
