@@ -216,12 +216,18 @@ def test_named_modules_commands_targets_and_paths_exist():
         config_of(config)  # an unknown variant raises the config file's own error
 
 
-@pytest.mark.parametrize("words", COMMANDS, ids=label)
+def overrides_of(argv: list[str]) -> list[str]:
+    return [w.partition("=")[0].removeprefix("--config.") for w in argv if w.startswith("--config.")]
+
+
+def flags_of(argv: list[str]) -> set[str]:
+    return {w[2:].partition("=")[0] for w in argv if w.startswith("--") and not w.startswith("--config.")} - {"help"}
+
+
+@pytest.mark.parametrize("words", [c for c in COMMANDS if overrides_of(split_env(c)[1])], ids=label)
 def test_every_config_override_is_a_field(words):
     _, argv = split_env(words)
-    overrides = [w.partition("=")[0].removeprefix("--config.") for w in argv if w.startswith("--config.")]
-    if not overrides:
-        return
+    overrides = overrides_of(argv)
     spec_text = config_spec(argv)
     assert spec_text, f"{label(words)}: --config.* overrides without a config"
     config = config_of(spec_text)
@@ -245,12 +251,11 @@ def test_each_kosmos_grasp_command_has_help(name):
     assert "usage" in text.lower() or "flags:" in text.lower(), text[-2000:]
 
 
-@pytest.mark.parametrize("words", [c for c in COMMANDS if module_of(split_env(c)[1])], ids=label)
+@pytest.mark.parametrize("words", [c for c in COMMANDS if module_of(split_env(c)[1]) and flags_of(split_env(c)[1])],
+                         ids=label)
 def test_every_flag_is_one_the_module_takes(words):
     _, argv = split_env(words)
-    flags = {w[2:].partition("=")[0] for w in argv if w.startswith("--") and not w.startswith("--config.")} - {"help"}
-    if not flags:
-        return
+    flags = flags_of(argv)
     text = help_text(module_of(argv))
     listed = lambda flag: re.search(r"--(\[no\])?%s(?![\w-])" % re.escape(flag), text)  # absl: --[no]flag
     assert not [f for f in sorted(flags) if not listed(f)], f"{label(words)}: flags its --help lacks"
