@@ -9,10 +9,10 @@ training examples, log x, error bars the std over folds) and data_size.json; x i
 training-split example count as its build recorded it.
 
 cpu: synthetic scenes, instruction kind NON, KOSMOS-E from configs/kosmos_e.py:demo trained from
-scratch for the same 200 steps in every arm (sized for about 5 minutes a fold on 2 shared
-cores, see table1.py), so the arms differ in data, not in compute: augmentations 2, 4, 8, 16 of 300 photos and
+scratch for the same 200 steps in every arm, so the arms differ in data, not in compute: augmentations 2, 4, 8, 16 of 300 photos and
 100, 300, 1000, 3000 photos of 4 augmentations (about 640 to 19,000 training examples); honest
-protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds, about 7 hours).
+protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds). Three image-wise folds
+took 546 to 1,015 s each on 2 shared cores (results/data_size).
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.

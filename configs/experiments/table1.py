@@ -11,9 +11,9 @@ instructions (the baselines' test views are the same photos and crops, photos wi
 
 cpu: Cornell photos (../shared/data/cornell); KOSMOS-E from configs/kosmos_e.py:demo (trained from
 scratch) for 300 steps, GR-ConvNet for 120 and GG-CNN2 for 400 (batch 8). Measured here (2 cores
-shared with other work, 2026-11-24): a KOSMOS-E fold took 383 to 451 s with its build and
-evaluation; the baselines' steps are 1.5 s and 0.46 s (benchmarks/baselines.py). Fold 0 of 5 by
-default, both schemes and protocols (16 runs, about an hour and a half); --config.folds= runs all five.
+shared with other work, 2026-11-24, results/table1): a fold took 383 to 569 s (KOSMOS-E), 288 to
+705 s (GR-ConvNet) and 506 to 582 s (GG-CNN2) with its build and evaluation; fold 0 of 5 by
+default, both schemes and protocols (16 runs, 8,372 s in all there); --config.folds= runs all five.
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines
 with a longer schedule, every fold.
 """

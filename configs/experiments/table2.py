@@ -9,9 +9,9 @@ Each arm is scored on its own fold's test split, whose instructions are the kind
 kinds they share. The no-learning rows come once per distinct test set.
 
 cpu: synthetic scenes (300 photos, 4 augmentations a training photo), KOSMOS-E from
-configs/kosmos_e.py:demo trained from scratch for 200 steps (sized for about 5 minutes a fold on 2
-shared cores, see table1.py), max_length 144 (ALL's longest example on synthetic scenes is about 120
-tokens); honest protocol, image-wise folds 0, 1 and 2 of 5 by default (12 folds, about 2 hours).
+configs/kosmos_e.py:demo trained from scratch for 200 steps, max_length 144 (ALL's longest example on synthetic scenes is
+about 120 tokens); honest protocol, image-wise folds 0, 1 and 2 of 5 by default (12 folds). Fold 0 of
+the four arms took 514 to 775 s a fold, 2,536 s in all, on 2 shared cores (results/table2).
 paper: configs/kosmos_e.py:paper (Cornell with KOSMOS-E's annotations, KOSMOS-2 initialisation:
 --config.init_from), both protocols, image-wise, every fold.
 """
