@@ -218,7 +218,7 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     run = open_run(workdir)
     batch = next(data_lib.eval_batches(run.split("train"), 8, 0, 1, 1))
     images, centres = jnp.asarray(batch["image"]), jnp.asarray(batch["grasp"][:, :2] / batch["image"].shape[1])
-    for readout, lr in (("patches", 1e-4), ("cls", 1e-3)):  # the class token alone needs the larger steps
+    for readout, lr in (("patches", 1e-4), ("cls", 1e-3), ("cells", 1e-3)):  # cls and cells need the larger steps
         probe = vp.CentreProbe(run.model_config.vision, readout, nnx.Rngs(0))
         optimizer = nnx.Optimizer(probe, optax.adamw(lr), wrt=nnx.Param)
         losses = [float(vp.train_step(probe, optimizer, images, centres)) for _ in range(40)]
@@ -227,6 +227,11 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     result = vp.vision_probe(workdir, steps=2, batch_size=8)
     assert result["test_examples"] == len(run.split("test")) and result["train_examples_seen"] == 16
     assert all(np.isfinite(result["mae_px"])) and all(0 <= e < 224 for e in result["mean_guess_mae_px"])
+    assert 0 <= result["within_20px"] <= 1 and 0 <= result["mean_guess_within_20px"] <= 1
+    cells = vp.vision_probe(workdir, steps=2, batch_size=8, readout="cells")
+    grid = run.model_config.vision.image_size // run.model_config.vision.patch_size
+    side = next(data_lib.eval_batches(run.split("test"), 8, 0, 1, 1))["image"].shape[1]
+    assert all(0 < e < side for e in cells["mae_px"]) and grid > 1
     assert np.all(np.asarray(result["centres_px"]["test"]["std"]) >= 0)
     assert vp.main([f"--workdir={workdir}", "--steps=0"]) == 1 and "steps=0" in capsys.readouterr().err
     assert vp.main([f"--workdir={workdir}", "--steps=1", "--batch-size=4", "--json"]) == 0
