@@ -66,6 +66,7 @@ def model_config(size: str, vision: dict | None = None, text: dict | None = None
     model.remat = False
     model.scan_layers = False
     model.magneto_init = True
+    model.connector_dense_std = placeholder(float)  # None: KOSMOS-2 init (0.02); from scratch, try 1.0
     model.update(changes)
     return model
 

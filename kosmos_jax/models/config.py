@@ -62,6 +62,10 @@ class Kosmos2Config:
     # Run-time policy, not part of the checkpoint.
     compute_dtype: str = "float32"  # "float32" or "bfloat16"; params, softmax and LayerNorm stay float32
     magneto_init: bool = True  # scale decoder fc1/fc2/out_proj/v_proj by sqrt(log(2N)) at init
+    # Init std of the connector's dense layer; None: text.init_std (0.02), KOSMOS-2's. Its inputs are
+    # unit-norm vectors, so at 0.02 a model trained from scratch gets image embeddings ~50x below its
+    # text embeddings, and in 200 steps learns nothing from the image (tests/test_train_step.py).
+    connector_dense_std: float | None = None
     # Blocks of each tower stacked on a leading `layers` axis and applied under nnx.scan: compile
     # time and program size stop growing with depth. Changes parameter paths, not values. Like every
     # nnx transform, scan and remat refuse variables made outside the current jax trace: inside raw

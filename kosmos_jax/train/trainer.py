@@ -63,7 +63,7 @@ def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_c
         raise ValueError(f"model.latent_query_num={model.latent_query_num}: the prompt has {special.IMAGE_SLOTS} image slots")
     return base.replace(vision=vision, text=text, latent_query_num=model.latent_query_num,
                         compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
-                        scan_layers=model.scan_layers)
+                        scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"))
 
 
 def initial_params(config, model_cfg: model_configs.Kosmos2Config):
