@@ -225,7 +225,7 @@ def test_steps_learn_an_answer_only_the_image_holds_once_the_connector_passes_th
     batch["loss_mask"] = np.zeros_like(batch["loss_mask"])
     batch["loss_mask"][:, -1] = True
     for _ in range(200):
-        train_state, metrics = train_step(train_state, batch)
+        train_state, _ = train_step(train_state, batch)
     eval_step = step.make_eval_step(cfg, on)
     own = float(eval_step(train_state.params, batch)["loss"])
     swapped = float(eval_step(train_state.params, {**batch, "image": np.roll(batch["image"], 1, axis=0)})["loss"])

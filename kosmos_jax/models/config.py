@@ -63,8 +63,8 @@ class Kosmos2Config:
     compute_dtype: str = "float32"  # "float32" or "bfloat16"; params, softmax and LayerNorm stay float32
     magneto_init: bool = True  # scale decoder fc1/fc2/out_proj/v_proj by sqrt(log(2N)) at init
     # Init std of the connector's dense layer; None: text.init_std (0.02), KOSMOS-2's. Its inputs are
-    # unit-norm vectors, so at 0.02 a model trained from scratch gets image embeddings ~50x below its
-    # text embeddings, and in 200 steps learns nothing from the image (tests/test_train_step.py).
+    # unit-norm vectors, so at 0.02 a model trained from scratch starts with image embeddings ~30x
+    # below its text embeddings, and in 200 steps learns nothing from the image (tests/test_train_step.py).
     connector_dense_std: float | None = None
     # Blocks of each tower stacked on a leading `layers` axis and applied under nnx.scan: compile
     # time and program size stop growing with depth. Changes parameter paths, not values. Like every
@@ -82,6 +82,10 @@ class Kosmos2Config:
     @property
     def magneto_gain(self) -> float:
         return math.sqrt(math.log(2 * self.text.layers)) if self.magneto_init else 1.0
+
+    @property
+    def connector_init_std(self) -> float:
+        return self.text.init_std if self.connector_dense_std is None else self.connector_dense_std
 
     def replace(self, **changes) -> "Kosmos2Config":
         return dataclasses.replace(self, **changes)

@@ -20,8 +20,8 @@ from kosmos_jax.models.sharding import constrain
 class ImageToTextProjection(nnx.Module):
     def __init__(self, cfg: Kosmos2Config, rngs: nnx.Rngs):
         d_text = cfg.text.embed_dim
-        std = cfg.text.init_std if cfg.connector_dense_std is None else cfg.connector_dense_std
-        self.dense = dense(cfg.vision.hidden_size, d_text, ("embed", "heads"), rngs, std=std, dtype=cfg.dtype)
+        self.dense = dense(cfg.vision.hidden_size, d_text, ("embed", "heads"), rngs, std=cfg.connector_init_std,
+                           dtype=cfg.dtype)
         self.latent_query = nnx.Param(jax.random.normal(rngs.params(), (cfg.latent_query_num, d_text)),
                                       logical_axes=("latents", "embed"))
         self.x_attn = TextAttention(cfg.text, cfg.dtype, rngs, inner_layernorm=False)

@@ -61,6 +61,7 @@ def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_c
     text = dataclasses.replace(base.text, **{**given(model.text), "vocab_size": vocab_size})
     if model.latent_query_num != special.IMAGE_SLOTS:
         raise ValueError(f"model.latent_query_num={model.latent_query_num}: the prompt has {special.IMAGE_SLOTS} image slots")
+    # .get: the configs stored by runs before connector_dense_std existed (evaluate reads them) lack it
     return base.replace(vision=vision, text=text, latent_query_num=model.latent_query_num,
                         compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
                         scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"))
