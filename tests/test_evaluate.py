@@ -192,6 +192,10 @@ def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(wo
     from kosmos_jax.evaluate import image_use
 
     np.testing.assert_array_equal(image_use.other_images(np.arange(3)), [1, 2, 0])
+    # rows of one photo side by side (its centre and angle parts) never get their own image back
+    np.testing.assert_array_equal(image_use.other_images(np.asarray([7, 7, 8, 8, 9])), [8, 8, 9, 9, 7])
+    with pytest.raises(ValueError, match="same image"):
+        image_use.other_images(np.zeros((4, 2, 2, 3), np.uint8))
     result = image_use.image_use(workdir, batches=4, batch_size=8)  # the tiny config's eval batches
     logged = [r for r in read_metrics(workdir) if r.get("split") == "test" and "loss" in r][-1]
     assert result["step"] == 2 and result["tokens"] == logged["tokens"] > 0

@@ -1,6 +1,6 @@
 """Does a trained KOSMOS-E read its image? The loss on the answer tokens of a split three ways: each
-example with its own image, with another photo's image (the batch's images rolled by one) and with
-a blank image.
+example with its own image, with another photo's image (the next row of the batch whose image
+differs) and with a blank image.
 
     python -m kosmos_jax.evaluate.image_use --workdir=runs/demo [--step=N] [--split=test] [--batches=4] [--json]
 
@@ -28,8 +28,19 @@ IMAGES = ("own", "other", "blank")
 
 
 def other_images(images: np.ndarray) -> np.ndarray:
-    """Each row's image replaced by the next row's (the last row takes the first's)."""
-    return np.roll(images, -1, axis=0)
+    """Each row's image replaced by that of the next row (cyclically) whose image differs. The rows of
+    one photo's instruction (its centre part and its angle part) sit side by side and share one image,
+    so a plain roll by one would hand every other row its own photo back."""
+    count = len(images)
+    flat = images.reshape(count, -1)
+    others = np.empty_like(images)
+    for row in range(count):
+        shift = next((shift for shift in range(1, count)
+                      if not np.array_equal(flat[(row + shift) % count], flat[row])), None)
+        if shift is None:
+            raise ValueError("every row of the batch holds the same image: no other photo's image to swap in")
+        others[row] = images[(row + shift) % count]
+    return others
 
 
 def image_use(workdir, step: int | None = None, split: str = "test", batches: int = 4, batch_size: int = 16) -> dict:
