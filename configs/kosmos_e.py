@@ -67,6 +67,7 @@ def model_config(size: str, vision: dict | None = None, text: dict | None = None
     model.scan_layers = False
     model.magneto_init = True
     model.connector_dense_std = placeholder(float)  # None: KOSMOS-2 init (0.02); from scratch, try 1.0
+    model.connector_grid_code = 0.0  # 0: KOSMOS-2's connector; > 0: centred tokens + a grid-cell code (from scratch)
     model.update(changes)
     return model
 
@@ -97,6 +98,7 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.eval_every = 0  # 0: only at the end
     train.eval_batches = 4  # test batches per evaluation (0: the whole test split)
     train.grasp_eval_every = 0  # grasp accuracy of decoded test answers every N steps (0: only at the end)
+    train.pointing_loss = 0.0  # weight of the connector's pointing loss (kosmos_jax.train.loss.pointing_sum); 0: none
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

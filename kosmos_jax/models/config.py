@@ -66,6 +66,11 @@ class Kosmos2Config:
     # unit-norm vectors, so at 0.02 a model trained from scratch starts with image embeddings ~30x
     # below its text embeddings, and in 200 steps learns nothing from the image (tests/test_train_step.py).
     connector_dense_std: float | None = None
+    # Amplitude of a fixed 2-D sin-cos code of each patch's grid cell, added to the connector's image
+    # tokens after they are centred on the image's mean patch token; 0: KOSMOS-2's connector. From
+    # scratch, a query's slot otherwise mixes the object's patch with what every patch shares, and the
+    # decoder does not learn to read where the object is (results/demo/diagnosis.txt, section 6).
+    connector_grid_code: float = 0.0
     # Blocks of each tower stacked on a leading `layers` axis and applied under nnx.scan: compile
     # time and program size stop growing with depth. Changes parameter paths, not values. Like every
     # nnx transform, scan and remat refuse variables made outside the current jax trace: inside raw

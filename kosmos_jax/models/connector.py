@@ -3,17 +3,26 @@
 Linear (vision width -> text width) on every image token; learned latent queries attend, in one
 multi-head attention with biases, over [projected image tokens ; latent queries]. No residual, no
 LayerNorm, no FFN.
+
+With `connector_grid_code` > 0 (not KOSMOS-2; for models trained from scratch) the projected tokens
+are centred on the image's mean patch token and each patch token gets a fixed sin-cos code of its
+grid cell, so a query that attends to one patch carries that patch's position in its slot.
+`pointing_log_probs` gives the attention's log-probabilities, for a loss that teaches the queries
+where to look (`train.pointing_loss`).
 """
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import nnx
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.decoder import TextAttention
-from kosmos_jax.models.layers import ACT, dense
+from kosmos_jax.models.layers import ACT, dense, split_heads
 from kosmos_jax.models.sharding import constrain
 
 
@@ -25,11 +34,41 @@ class ImageToTextProjection(nnx.Module):
         self.latent_query = nnx.Param(jax.random.normal(rngs.params(), (cfg.latent_query_num, d_text)),
                                       logical_axes=("latents", "embed"))
         self.x_attn = TextAttention(cfg.text, cfg.dtype, rngs, inner_layernorm=False)
+        self.grid_code = cfg.connector_grid_code
+
+    def queries_and_keys(self, features: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """features [B, 1 + patches, D_vision] -> latent queries [B, Q, D_text], keys [B, 1 + patches + Q, D_text]."""
+        tokens = self.dense(features)
+        if self.grid_code:
+            tokens = tokens - tokens[:, 1:].mean(axis=1, keepdims=True)
+            tokens = tokens + self.grid_code * grid_code(features.shape[1] - 1, tokens.shape[-1]).astype(tokens.dtype)
+        queries = jnp.broadcast_to(self.latent_query[...].astype(tokens.dtype), (tokens.shape[0], *self.latent_query.shape))
+        return queries, jnp.concatenate([tokens, queries], axis=1)
 
     def __call__(self, features: jax.Array) -> jax.Array:
         """features [B, 1 + patches, D_vision] -> image embeddings [B, latent_query_num, D_text] (float32)."""
-        tokens = self.dense(features)
-        queries = jnp.broadcast_to(self.latent_query[...].astype(tokens.dtype), (tokens.shape[0], *self.latent_query.shape))
-        keys = jnp.concatenate([tokens, queries], axis=1)
+        queries, keys = self.queries_and_keys(features)
         out, _ = self.x_attn(queries, mask=None, kv_input=keys)
         return constrain(out.astype(jnp.float32), ACT)
+
+    def pointing_log_probs(self, features: jax.Array) -> jax.Array:
+        """[B, heads, Q, 1 + patches + Q] float32: where each head of each latent query looks (log-softmax)."""
+        queries, keys = self.queries_and_keys(features)
+        attention = self.x_attn
+        q, k = split_heads(attention.q_proj(queries), attention.num_heads), split_heads(attention.k_proj(keys), attention.num_heads)
+        scores = jnp.einsum("bthd,bshd->bhts", q, k, preferred_element_type=jnp.float32) * q.shape[-1] ** -0.5
+        return jax.nn.log_softmax(scores, axis=-1)
+
+
+def grid_code(patches: int, width: int) -> jnp.ndarray:
+    """[1 + patches, width]: a sin-cos code of each patch's cell (x then y) of the square grid, zeros
+    for the class token; frequencies from one to width/8 periods across the grid."""
+    side = math.isqrt(patches)
+    if side * side != patches or width % 4:
+        raise ValueError(f"a grid code needs a square patch grid and a width divisible by 4, got {patches} patches, width {width}")
+    frequencies = 100.0 ** -(np.arange(width // 4) / (width // 4))
+    cells = (np.arange(side) + 0.5) / side * 2 * np.pi
+    y, x = (np.repeat(cells, side), np.tile(cells, side))
+    angles_x, angles_y = x[:, None] * frequencies, y[:, None] * frequencies
+    code = np.concatenate([np.sin(angles_x), np.cos(angles_x), np.sin(angles_y), np.cos(angles_y)], axis=1)
+    return jnp.asarray(np.concatenate([np.zeros((1, width)), code]), jnp.float32)

@@ -28,7 +28,24 @@ def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> di
     }
 
 
+def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:
+    """The connector's pointing loss as a sum: for each example, the cross-entropy of every head of every
+    latent query against the patch that holds the target grasp's centre (log_probs [B, H, Q, 1 + patches
+    + Q], keys in the connector's order, the class token first), weighted by the example's loss tokens so
+    that, divided by the batch's token count like the text loss, it is a per-token mean."""
+    patches = log_probs.shape[-1] - 1 - log_probs.shape[2]
+    side = round(patches ** 0.5)
+    cell = jnp.clip(jnp.floor(grasp[:, :2] / image_side * side), 0, side - 1).astype(jnp.int32)
+    target = 1 + cell[:, 1] * side + cell[:, 0]
+    picked = jnp.take_along_axis(log_probs, target[:, None, None, None], axis=-1)[..., 0]
+    weight = jnp.where(jnp.isfinite(grasp[:, :2]).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
+    return -jnp.sum(picked.mean(axis=(1, 2)) * weight)
+
+
 def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
-    """Loss and accuracy per counted token (0 for a batch without any)."""
+    """Loss and accuracy per counted token (0 for a batch without any); the pointing loss when summed."""
     count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
-    return {"loss": sums["loss_sum"] / count, "accuracy": sums["correct"] / count}
+    out = {"loss": sums["loss_sum"] / count, "accuracy": sums["correct"] / count}
+    if "pointing_sum" in sums:
+        out["pointing"] = sums["pointing_sum"] / count
+    return out

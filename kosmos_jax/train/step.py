@@ -6,7 +6,8 @@
 
 A batch is a dict of arrays with the global batch on the leading axis (sharded over data and fsdp):
 image uint8 [B, S, S, 3], tokens int32 [B, L], loss_mask and image_mask bool [B, L], length int32
-[B]; other keys are ignored. The loss is the mean over the loss tokens of the whole global batch:
+[B], grasp float32 [B, 5] (the target grasp in the stored image's pixels, read only by the pointing
+loss); other keys are ignored. The loss is the mean over the loss tokens of the whole global batch:
 each microbatch adds its gradient of the loss SUM, divided once by the global token count, so any
 number of microbatches gives the same update as one. Dropout draws from (seed, step, microbatch)
 only, so a resumed run repeats the masks of the run it resumes. A step whose loss or gradients are
@@ -32,11 +33,11 @@ from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
-from kosmos_jax.train.loss import means, token_sums
+from kosmos_jax.train.loss import means, pointing_sum, token_sums
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
 
-BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length")
+BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp")
 _DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
 
 
@@ -70,6 +71,15 @@ def logits(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
     return model(batch["tokens"], attention_mask, batch["image_mask"], pixels=images)
 
 
+def logits_and_pointing(model: Kosmos2, batch: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
+    """`logits` and the connector's pointing log-probabilities, from one pass of the vision tower."""
+    attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
+    features = model.vision_model(pixels(batch["image"], model.config.vision.image_size))
+    connector = model.image_to_text_projection
+    out = model(batch["tokens"], attention_mask, batch["image_mask"], image_embeds=connector(features))
+    return out, connector.pointing_log_probs(features)
+
+
 def split_microbatches(batch: dict[str, jax.Array], microbatches: int) -> dict[str, jax.Array]:
     """[B, ...] -> [microbatches, B / microbatches, ...], microbatch m holding rows m, m + M, ...:
     with B sharded in contiguous blocks, each device's rows of every microbatch are its own."""
@@ -88,20 +98,26 @@ def _all_finite(tree) -> jax.Array:
 
 
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
-                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0) -> Callable:
+                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
     (of this update), grad_norm (before clipping), update_norm, param_norm (after), tokens (loss
-    tokens of the global batch), finite.
+    tokens of the global batch), finite; with `pointing_loss` > 0, also pointing: the connector's
+    pointing cross-entropy (`loss.pointing_sum`), added to the loss with that weight.
     """
     graphdef, _, rest = split_model(abstract_model(model_config))
     state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
 
     def loss_sum(params, batch, key):
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
-        sums = token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
-        return sums["loss_sum"], sums
+        if not pointing_loss:
+            sums = token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
+            return sums["loss_sum"], sums
+        out, log_probs = logits_and_pointing(model, batch)
+        sums = token_sums(out, batch["tokens"], batch["loss_mask"])
+        sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], batch["image"].shape[1], batch["loss_mask"])
+        return sums["loss_sum"] + pointing_loss * sums["pointing_sum"], sums
 
     def accumulate(params, step, parts):
         def add(carry, indexed):
@@ -112,6 +128,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
 
         zero_sums = {"loss_sum": jnp.zeros((), jnp.float32), "correct": jnp.zeros((), jnp.int32),
                      "tokens": jnp.zeros((), jnp.int32)}
+        if pointing_loss:
+            zero_sums["pointing_sum"] = jnp.zeros((), jnp.float32)
         zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
         (grads, sums), _ = jax.lax.scan(add, zero, (jnp.arange(microbatches), parts))
         return grads, sums

@@ -61,10 +61,11 @@ def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_c
     text = dataclasses.replace(base.text, **{**given(model.text), "vocab_size": vocab_size})
     if model.latent_query_num != special.IMAGE_SLOTS:
         raise ValueError(f"model.latent_query_num={model.latent_query_num}: the prompt has {special.IMAGE_SLOTS} image slots")
-    # .get: the configs stored by runs before connector_dense_std existed (evaluate reads them) lack it
+    # .get: the configs stored by runs before the connector options existed (evaluate reads them) lack them
     return base.replace(vision=vision, text=text, latent_query_num=model.latent_query_num,
                         compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
-                        scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"))
+                        scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"),
+                        connector_grid_code=model.get("connector_grid_code", 0.0))
 
 
 def initial_params(config, model_cfg: model_configs.Kosmos2Config):
@@ -147,7 +148,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
                                      jax.process_index(), jax.process_count())
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
-                                 seed=config.train.seed)
+                                 seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     grasps = GraspEvaluation(model_cfg, mesh, splits["test"], tokenizer, FormatConfig(**dataset.identity["format"]),
@@ -161,7 +162,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                 "loss_tokens": metrics["tokens"], "step_s": step_s,
                 "examples_per_s": batch_size / step_s,
                 "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
-                "data_wait_fraction": min(1.0, waited / step_s)}
+                "data_wait_fraction": min(1.0, waited / step_s),
+                **({"pointing": metrics["pointing"]} if "pointing" in metrics else {})}
 
     def test_record(step, state, with_grasps: bool, log: MetricsLog) -> dict:
         """Loss and token accuracy on the test split; with the grasp accuracy of decoded answers if asked."""

@@ -1,0 +1,107 @@
+"""The connector's grid code and the pointing loss (options for models trained from scratch)."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+import pytest
+from flax import nnx
+
+from kosmos_jax.models import config as model_config
+from kosmos_jax.models import kosmos2
+from kosmos_jax.models.connector import grid_code
+from kosmos_jax.models.preprocess import pixels
+from kosmos_jax.train import loss, mesh, optimizer, state, step
+
+TINY = model_config.TINY
+NO_DROPOUT = TINY.replace(text=dataclasses.replace(TINY.text, dropout=0.0, attention_dropout=0.0))
+GRID = TINY.vision.image_size // TINY.vision.patch_size  # 8 x 8 patches
+STORED = 224
+
+
+def test_the_grid_code_gives_each_cell_its_own_code_and_the_class_token_none():
+    code = np.asarray(grid_code(16, 8))
+    assert code.shape == (17, 8) and not code[0].any()
+    distances = np.linalg.norm(code[1:, None] - code[None, 1:], axis=-1)
+    assert (distances + np.eye(16) > 0.1).all()  # no two cells alike
+    # x then y: cells of one row share the y half, cells of one column the x half
+    np.testing.assert_allclose(code[1, 4:], code[4, 4:])
+    np.testing.assert_allclose(code[1, :4], code[5, :4])
+    with pytest.raises(ValueError, match="square patch grid"):
+        grid_code(12, 8)
+    with pytest.raises(ValueError, match="divisible by 4"):
+        grid_code(16, 6)
+
+
+def test_with_a_grid_code_the_slots_ignore_what_every_image_token_shares():
+    model = kosmos2.build(NO_DROPOUT.replace(connector_grid_code=1.0))
+    features = jax.random.normal(jax.random.key(0), (2, 1 + GRID * GRID, TINY.vision.hidden_size))
+    shared = jax.random.normal(jax.random.key(1), (TINY.vision.hidden_size,))
+    connector = model.image_to_text_projection
+    np.testing.assert_allclose(connector(features + shared), connector(features), atol=1e-5)
+    kosmos_2 = kosmos2.build(NO_DROPOUT).image_to_text_projection
+    assert np.abs(kosmos_2(features + shared) - kosmos_2(features)).max() > 1e-3
+
+
+def test_pointing_sum_is_minus_the_log_probability_of_the_grasp_patch_weighted_by_loss_tokens():
+    batch, heads, queries, patches = 3, 2, 3, 4
+    keys = 1 + patches + queries
+    log_probs = jnp.log(jax.nn.softmax(jax.random.normal(jax.random.key(0), (batch, heads, queries, keys)), -1))
+    # centres in a 224 px view of a 2 x 2 grid: bottom-left, top-right, none (NaN)
+    grasp = jnp.asarray([[10.0, 200.0, 5, 5, 0], [150.0, 20.0, 5, 5, 0], [np.nan, np.nan, 5, 5, 0]])
+    loss_mask = jnp.asarray([[0, 1, 1, 0], [0, 1, 0, 0], [0, 1, 1, 1]], bool)
+    expected = 0.0
+    for row, (patch, tokens) in enumerate([(2, 2), (1, 1)]):  # row-major patch index, its loss tokens
+        expected -= tokens * float(log_probs[row, :, :, 1 + patch].mean())
+    assert float(loss.pointing_sum(log_probs, grasp, STORED, loss_mask)) == pytest.approx(expected, rel=1e-6)
+
+
+def _squares(count, seed):
+    """Grey images with one white square in a random patch cell, and that square's centre as the grasp."""
+    rng = np.random.default_rng(seed)
+    cells = rng.integers(0, GRID, (count, 2))
+    side = STORED // GRID
+    images = np.full((count, STORED, STORED, 3), 90, np.uint8)
+    for image, (x, y) in zip(images, cells):
+        image[y * side:(y + 1) * side, x * side:(x + 1) * side] = 255
+    grasp = np.zeros((count, 5), np.float32)
+    grasp[:, :2] = (cells + 0.5) * side
+    return images, grasp, cells[:, 1] * GRID + cells[:, 0]
+
+
+def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch_of_new_images():
+    cfg = NO_DROPOUT.replace(connector_dense_std=1.0, connector_grid_code=1.0)
+    on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
+    opt = ml_collections.ConfigDict(dict(name="adamw", peak_lr=3e-3, end_lr=3e-3, warmup_steps=0, decay_steps=None,
+                                         b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
+    tx, schedule = optimizer.make_optimizer(opt, total_steps=150)
+    train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=1, seed=0, pointing_loss=1.0)
+    _, params, _ = state.split_model(kosmos2.build(cfg))
+    train_state = state.init_train_state(params, tx, on)
+    length, count = 3 + cfg.latent_query_num + 2, 16
+    tokens = np.full((count, length), 5, np.int32)
+    image_mask = np.zeros((count, length), bool)
+    image_mask[:, 2:2 + cfg.latent_query_num] = True
+    loss_mask = np.zeros((count, length), bool)
+    loss_mask[:, -1] = True
+    for seed in range(150):
+        images, grasp, _ = _squares(count, seed)
+        batch = dict(image=images, tokens=tokens, loss_mask=loss_mask, image_mask=image_mask,
+                     length=np.full(count, length, np.int32), grasp=grasp)
+        train_state, metrics = train_step(train_state, batch)
+        if seed == 0:
+            first = float(metrics["pointing"])
+    assert first == pytest.approx(np.log(1 + GRID * GRID + cfg.latent_query_num), abs=0.3)
+    model = nnx.merge(*_graph_and_rest(cfg, train_state.params))
+    images, _, cells = _squares(32, seed=10_000)  # images no step saw
+    features = model.vision_model(pixels(images, cfg.vision.image_size))
+    looked_at = jnp.argmax(model.image_to_text_projection.pointing_log_probs(features).mean(axis=(1, 2)), -1) - 1
+    assert float(metrics["pointing"]) < first - 1.0
+    assert (np.asarray(looked_at) == cells).mean() >= 0.9, (np.asarray(looked_at), cells)
+
+
+def _graph_and_rest(cfg, params):
+    graphdef, _, rest = state.split_model(kosmos2.build(cfg))
+    return graphdef, params, rest
