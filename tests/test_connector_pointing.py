@@ -10,10 +10,10 @@ import pytest
 from flax import nnx
 
 from kosmos_jax.models import config as model_config
-from kosmos_jax.models import kosmos2
+from kosmos_jax.models import kosmos2, weights
 from kosmos_jax.models.connector import grid_code
 from kosmos_jax.models.preprocess import pixels
-from kosmos_jax.train import loss, mesh, optimizer, state, step
+from kosmos_jax.train import loss, mesh, optimizer, state, step, trainer
 
 TINY = model_config.TINY
 NO_DROPOUT = TINY.replace(text=dataclasses.replace(TINY.text, dropout=0.0, attention_dropout=0.0))
@@ -105,3 +105,22 @@ def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch
 def _graph_and_rest(cfg, params):
     graphdef, _, rest = state.split_model(kosmos2.build(cfg))
     return graphdef, params, rest
+
+
+def test_a_model_with_a_grid_code_is_not_exported_as_kosmos_2(tmp_path):
+    with pytest.raises(ValueError, match="grid code"):
+        weights.save_pretrained(kosmos2.build(TINY.replace(connector_grid_code=1.0)), tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_run_resumes_only_with_its_own_connector(tmp_path):
+    def description(grid_code):
+        return {"data_identity": {"build": 1}, "model": {"layers": 2}, "connector": {"grid_code": grid_code}}
+
+    older = {key: value for key, value in description(0.0).items() if key != "connector"}  # runs made before the option
+    trainer.check_same_run(older, description(0.0), tmp_path)
+    trainer.check_same_run(description(1.0), description(1.0), tmp_path)
+    with pytest.raises(trainer.RunMismatchError, match="another connector"):
+        trainer.check_same_run(older, description(1.0), tmp_path)
+    with pytest.raises(trainer.RunMismatchError, match="another connector"):
+        trainer.check_same_run(description(1.0), description(3.0), tmp_path)

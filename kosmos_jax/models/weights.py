@@ -209,6 +209,10 @@ def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes:
     """Write config.json and model.safetensors (or shards + index when over `max_shard_bytes`).
 
     The tied LM head is not written, as transformers does for tied weights."""
+    if model.config.connector_grid_code:
+        raise ValueError(f"this model's connector adds a grid code (connector_grid_code="
+                         f"{model.config.connector_grid_code}), which transformers' KOSMOS-2 lacks: its export would "
+                         "compute other image embeddings")
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "config.json").write_text(json.dumps(model.config.to_hf_dict(), indent=2) + "\n")

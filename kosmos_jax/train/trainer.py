@@ -112,13 +112,15 @@ def prepare_data(data_config) -> data_lib.Dataset:
 def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
     return {"config": json.loads(config.to_json_best_effort()), "data_identity": dataset.identity,
             "dataset_dir": str(dataset.dir), "model": model_cfg.to_hf_dict(),
+            "connector": {"grid_code": model_cfg.connector_grid_code},  # changes the forward pass; not in to_hf_dict
             "runtime": {"compute_dtype": model_cfg.compute_dtype},
             "rng": {"seed": config.train.seed, "dropout": "fold_in(fold_in(key(seed), stream), step), per microbatch"}}
 
 
 def check_same_run(stored: dict, current: dict, workdir) -> None:
-    for field, what in (("data_identity", "dataset"), ("model", "model")):
-        if stored.get(field) != current[field]:
+    kosmos_2_connector = {"grid_code": 0.0}  # what runs made before the connector options stored (nothing)
+    for field, what in (("data_identity", "dataset"), ("model", "model"), ("connector", "connector")):
+        if stored.get(field, kosmos_2_connector if field == "connector" else None) != current[field]:
             raise RunMismatchError(f"{workdir} holds a run of another {what} than this config's; "
                                    "resume it with its own config or use a new --workdir")
 
