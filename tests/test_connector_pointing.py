@@ -11,7 +11,7 @@ from flax import nnx
 
 from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2, weights
-from kosmos_jax.models.connector import grid_code
+from kosmos_jax.models.connector import cell_centre, cell_index, grid_code, grid_side
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import loss, mesh, optimizer, state, step, trainer
 
@@ -29,10 +29,23 @@ def test_the_grid_code_gives_each_cell_its_own_code_and_the_class_token_none():
     # x then y: cells of one row share the y half, cells of one column the x half
     np.testing.assert_allclose(code[1, 4:], code[4, 4:])
     np.testing.assert_allclose(code[1, :4], code[5, :4])
-    with pytest.raises(ValueError, match="square patch grid"):
+    with pytest.raises(ValueError, match="square grid"):
         grid_code(12, 8)
     with pytest.raises(ValueError, match="divisible by 4"):
         grid_code(16, 6)
+
+
+def test_a_patch_cell_index_and_its_centre_invert_each_other_on_the_grid():
+    """The cells the pointing loss and the vision probe's cells readout train on, and what the probe answers."""
+    side = 4
+    every = cell_centre(jnp.arange(side * side), side)
+    assert np.allclose(every[5], [1.5 / side, 1.5 / side]) and np.allclose(every[side], [0.5 / side, 1.5 / side])
+    assert np.array_equal(cell_index(every, side), np.arange(side * side))
+    # a patch's corner belongs to it; the view's far edge and beyond to the last row/column
+    assert cell_index(jnp.asarray([[0.25, 0.5], [1.0, 1.0], [-0.1, 2.0]]), side).tolist() == [9, 15, 12]
+    assert grid_side(64) == 8
+    with pytest.raises(ValueError, match="square grid"):
+        grid_side(63)
 
 
 def test_with_a_grid_code_the_slots_ignore_what_every_image_token_shares():

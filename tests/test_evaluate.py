@@ -211,19 +211,6 @@ def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(wo
     assert "no checkpoint of step 7" in capsys.readouterr().err
 
 
-def test_the_cells_readout_answers_the_centre_of_the_patch_it_trains_on():
-    import jax.numpy as jnp
-
-    from kosmos_jax.experiments import vision_probe as vp
-
-    grid = 4
-    every = vp.cell_centre(jnp.arange(grid * grid), grid)
-    assert np.allclose(every[5], [1.5 / grid, 1.5 / grid]) and np.allclose(every[grid], [0.5 / grid, 1.5 / grid])
-    assert np.array_equal(vp.cell_index(every, grid), np.arange(grid * grid))
-    # a patch's corner belongs to it; the view's far edge and beyond to the last row/column
-    assert vp.cell_index(jnp.asarray([[0.25, 0.5], [1.0, 1.0], [-0.1, 2.0]]), grid).tolist() == [9, 15, 12]
-
-
 def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, capsys):
     import jax.numpy as jnp
     import optax

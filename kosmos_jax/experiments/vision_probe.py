@@ -28,22 +28,12 @@ import optax
 from flax import nnx
 
 from kosmos_jax.evaluate.run import RunError, open_run
+from kosmos_jax.models.connector import cell_centre, cell_index
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.vision import VisionModel
 from kosmos_jax.train import data as data_lib
 
 READOUTS = ("patches", "cls", "cells")
-
-
-def cell_index(centres: jax.Array, grid: int) -> jax.Array:
-    """[B, 2] centres (x, y) in units of the view's side -> [B] row-major index of the patch holding each."""
-    cell = jnp.clip(jnp.floor(centres * grid), 0, grid - 1).astype(jnp.int32)
-    return cell[:, 1] * grid + cell[:, 0]
-
-
-def cell_centre(index: jax.Array, grid: int) -> jax.Array:
-    """[B] row-major patch indices -> [B, 2] their centres (x, y) in units of the view's side."""
-    return (jnp.stack([index % grid, index // grid], axis=-1) + 0.5) / grid
 
 
 class CentreProbe(nnx.Module):

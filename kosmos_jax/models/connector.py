@@ -60,12 +60,31 @@ class ImageToTextProjection(nnx.Module):
         return jax.nn.log_softmax(scores, axis=-1)
 
 
+def grid_side(patches: int) -> int:
+    """The side of the square patch grid that `patches` tokens form (row-major, as the vision tower lays them out)."""
+    side = math.isqrt(patches)
+    if side * side != patches:
+        raise ValueError(f"{patches} patches do not form a square grid")
+    return side
+
+
+def cell_index(centres: jax.Array, side: int) -> jax.Array:
+    """[B, 2] centres (x, y) in units of the view's side -> [B] row-major index of the patch holding each."""
+    cell = jnp.clip(jnp.floor(centres * side), 0, side - 1).astype(jnp.int32)
+    return cell[:, 1] * side + cell[:, 0]
+
+
+def cell_centre(index: jax.Array, side: int) -> jax.Array:
+    """[B] row-major patch indices -> [B, 2] their centres (x, y) in units of the view's side."""
+    return (jnp.stack([index % side, index // side], axis=-1) + 0.5) / side
+
+
 def grid_code(patches: int, width: int) -> jnp.ndarray:
     """[1 + patches, width]: a sin-cos code of each patch's cell (x then y) of the square grid, zeros
     for the class token; frequencies from one to width/8 periods across the grid."""
-    side = math.isqrt(patches)
-    if side * side != patches or width % 4:
-        raise ValueError(f"a grid code needs a square patch grid and a width divisible by 4, got {patches} patches, width {width}")
+    side = grid_side(patches)
+    if width % 4:
+        raise ValueError(f"a grid code needs a width divisible by 4, got {width}")
     frequencies = 100.0 ** -(np.arange(width // 4) / (width // 4))
     cells = (np.arange(side) + 0.5) / side * 2 * np.pi
     y, x = (np.repeat(cells, side), np.tile(cells, side))

@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from kosmos_jax.models.connector import cell_index, grid_side
+
 
 def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> dict[str, jax.Array]:
     """logits [B, T, V], tokens int [B, T], loss_mask bool [B, T] ->
@@ -33,10 +35,8 @@ def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_m
     latent query against the patch that holds the target grasp's centre (log_probs [B, H, Q, 1 + patches
     + Q], keys in the connector's order, the class token first), weighted by the example's loss tokens so
     that, divided by the batch's token count like the text loss, it is a per-token mean."""
-    patches = log_probs.shape[-1] - 1 - log_probs.shape[2]
-    side = round(patches ** 0.5)
-    cell = jnp.clip(jnp.floor(grasp[:, :2] / image_side * side), 0, side - 1).astype(jnp.int32)
-    target = 1 + cell[:, 1] * side + cell[:, 0]
+    side = grid_side(log_probs.shape[-1] - 1 - log_probs.shape[2])
+    target = 1 + cell_index(grasp[:, :2] / image_side, side)
     picked = jnp.take_along_axis(log_probs, target[:, None, None, None], axis=-1)[..., 0]
     weight = jnp.where(jnp.isfinite(grasp[:, :2]).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
     return -jnp.sum(picked.mean(axis=(1, 2)) * weight)
