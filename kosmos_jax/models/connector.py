@@ -22,7 +22,7 @@ from flax import nnx
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.decoder import TextAttention
-from kosmos_jax.models.layers import ACT, dense, split_heads
+from kosmos_jax.models.layers import ACT, attention_scores, dense, split_heads
 from kosmos_jax.models.sharding import constrain
 
 
@@ -55,9 +55,8 @@ class ImageToTextProjection(nnx.Module):
         """[B, heads, Q, 1 + patches + Q] float32: where each head of each latent query looks (log-softmax)."""
         queries, keys = self.queries_and_keys(features)
         attention = self.x_attn
-        q, k = split_heads(attention.q_proj(queries), attention.num_heads), split_heads(attention.k_proj(keys), attention.num_heads)
-        scores = jnp.einsum("bthd,bshd->bhts", q, k, preferred_element_type=jnp.float32) * q.shape[-1] ** -0.5
-        return jax.nn.log_softmax(scores, axis=-1)
+        q, k = (split_heads(project(x), attention.num_heads) for project, x in ((attention.q_proj, queries), (attention.k_proj, keys)))
+        return jax.nn.log_softmax(attention_scores(q, k), axis=-1)
 
 
 def grid_side(patches: int) -> int:
