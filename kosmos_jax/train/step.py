@@ -64,20 +64,18 @@ def rng_state(rest: nnx.State, key: jax.Array) -> nnx.State:
     return jax.tree.unflatten(treedef, [reseeded(i, var) for i, var in enumerate(variables)])
 
 
-def logits(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
-    """The model's logits [B, L, V] for a batch of stored examples (images as the processor prepares them)."""
-    attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
-    images = pixels(batch["image"], model.config.vision.image_size)
-    return model(batch["tokens"], attention_mask, batch["image_mask"], pixels=images)
+def image_features(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
+    """The vision tower's features [B, 1 + patches, D] of a batch's stored images."""
+    return model.vision_model(pixels(batch["image"], model.config.vision.image_size))
 
 
-def logits_and_pointing(model: Kosmos2, batch: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
-    """`logits` and the connector's pointing log-probabilities, from one pass of the vision tower."""
+def logits(model: Kosmos2, batch: dict[str, jax.Array], features: jax.Array | None = None) -> jax.Array:
+    """The model's logits [B, L, V] for a batch of stored examples (images as the processor prepares
+    them), from the vision tower's `features` when the caller has them already."""
+    features = image_features(model, batch) if features is None else features
     attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
-    features = model.vision_model(pixels(batch["image"], model.config.vision.image_size))
-    connector = model.image_to_text_projection
-    out = model(batch["tokens"], attention_mask, batch["image_mask"], image_embeds=connector(features))
-    return out, connector.pointing_log_probs(features)
+    image_embeds = model.image_to_text_projection(features)
+    return model(batch["tokens"], attention_mask, batch["image_mask"], image_embeds=image_embeds)
 
 
 def split_microbatches(batch: dict[str, jax.Array], microbatches: int) -> dict[str, jax.Array]:
@@ -111,11 +109,11 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
 
     def loss_sum(params, batch, key):
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
+        features = image_features(model, batch)
+        sums = token_sums(logits(model, batch, features), batch["tokens"], batch["loss_mask"])
         if not pointing_loss:
-            sums = token_sums(logits(model, batch), batch["tokens"], batch["loss_mask"])
             return sums["loss_sum"], sums
-        out, log_probs = logits_and_pointing(model, batch)
-        sums = token_sums(out, batch["tokens"], batch["loss_mask"])
+        log_probs = model.image_to_text_projection.pointing_log_probs(features)
         sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], batch["image"].shape[1], batch["loss_mask"])
         return sums["loss_sum"] + pointing_loss * sums["pointing_sum"], sums
 
