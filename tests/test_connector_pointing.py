@@ -91,7 +91,7 @@ def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch
                                          b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
     tx, schedule = optimizer.make_optimizer(opt, total_steps=150)
     train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=1, seed=0, pointing_loss=1.0)
-    _, params, _ = state.split_model(kosmos2.build(cfg))
+    graphdef, params, rest = state.split_model(kosmos2.build(cfg))
     train_state = state.init_train_state(params, tx, on)
     length, count = 3 + cfg.latent_query_num + 2, 16
     tokens = np.full((count, length), 5, np.int32)
@@ -107,17 +107,13 @@ def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch
         if seed == 0:
             first = float(metrics["pointing"])
     assert first == pytest.approx(np.log(1 + GRID * GRID + cfg.latent_query_num), abs=0.3)
-    model = nnx.merge(*_graph_and_rest(cfg, train_state.params))
+    model = nnx.merge(graphdef, train_state.params, rest)
     images, _, cells = _squares(32, seed=10_000)  # images no step saw
     features = model.vision_model(pixels(images, cfg.vision.image_size))
     looked_at = jnp.argmax(model.image_to_text_projection.pointing_log_probs(features).mean(axis=(1, 2)), -1) - 1
     assert float(metrics["pointing"]) < first - 1.0
     assert (np.asarray(looked_at) == cells).mean() >= 0.9, (np.asarray(looked_at), cells)
 
-
-def _graph_and_rest(cfg, params):
-    graphdef, _, rest = state.split_model(kosmos2.build(cfg))
-    return graphdef, params, rest
 
 
 def test_a_model_with_a_grid_code_is_not_exported_as_kosmos_2(tmp_path):

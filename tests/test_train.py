@@ -102,7 +102,7 @@ def test_a_tiny_run_lowers_the_loss_and_logs_everything(reference, dataset_dir):
     assert "is finished" in again.stdout
 
 
-@pytest.mark.slow  # 90 to 100 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
+@pytest.mark.slow  # 91 to 103 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
 def test_sigterm_then_kill_9_resume_with_bit_identical_losses(reference, dataset_dir, tmp_path):
     workdir = tmp_path / "interrupted"
     run = start(workdir, dataset_dir, f"--config.train.steps={STEPS}")
@@ -127,7 +127,7 @@ def test_eight_devices_log_the_losses_of_one(reference, dataset_dir, tmp_path):
     np.testing.assert_allclose([losses[s] for s in range(1, 6)], [expected[s] for s in range(1, 6)], rtol=1e-4)
 
 
-@pytest.mark.slow  # 90 to 100 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
+@pytest.mark.slow  # 91 to 103 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
 def test_a_checkpoint_of_eight_fsdp_devices_restores_onto_one(reference, dataset_dir, tmp_path):
     train(tmp_path, dataset_dir, "--config.train.steps=5", "--config.mesh.data=1", "--config.mesh.fsdp=8", devices=8)
     resumed = train(tmp_path, dataset_dir, "--config.train.steps=10", "--config.mesh.data=1", "--config.mesh.fsdp=1")
@@ -136,7 +136,7 @@ def test_a_checkpoint_of_eight_fsdp_devices_restores_onto_one(reference, dataset
     np.testing.assert_allclose([losses[s] for s in range(6, 11)], [expected[s] for s in range(6, 11)], rtol=1e-4)
 
 
-@pytest.mark.slow  # 90 to 100 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
+@pytest.mark.slow  # 91 to 103 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
 def test_two_processes_log_the_losses_of_one_process_with_all_devices(dataset_dir, tmp_path):
     # without dropout: its masks follow each row's place in the batch, which the processes' shards reorder
     quiet = ("--config.train.steps=3", "--config.model.text.dropout=0.0", "--config.model.text.attention_dropout=0.0")
