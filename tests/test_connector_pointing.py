@@ -133,3 +133,10 @@ def test_a_run_resumes_only_with_its_own_connector(tmp_path):
         trainer.check_same_run(older, description(1.0), tmp_path)
     with pytest.raises(trainer.RunMismatchError, match="another connector"):
         trainer.check_same_run(description(1.0), description(3.0), tmp_path)
+
+
+def test_a_run_without_a_connector_resumes_and_still_checks_its_model(tmp_path):
+    baseline = {"data_identity": {"build": 1}, "model": {"layers": 2}}  # what a baseline's run.json holds
+    trainer.check_same_run(baseline, dict(baseline), tmp_path)
+    with pytest.raises(trainer.RunMismatchError, match="another model"):
+        trainer.check_same_run(baseline, {**baseline, "model": {"layers": 3}}, tmp_path)

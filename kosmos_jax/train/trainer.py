@@ -117,13 +117,14 @@ def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
             "rng": {"seed": config.train.seed, "dropout": "fold_in(fold_in(key(seed), stream), step), per microbatch"}}
 
 
-# What a run.json written before a field existed stands for (runs before the connector options: KOSMOS-2's)
+# What a description without a field stands for: runs made before the connector options, and the
+# baselines, which have no connector, hold KOSMOS-2's
 STORED_BEFORE = {"connector": {"grid_code": 0.0}}
 
 
 def check_same_run(stored: dict, current: dict, workdir) -> None:
     for field, what in (("data_identity", "dataset"), ("model", "model"), ("connector", "connector")):
-        if stored.get(field, STORED_BEFORE.get(field)) != current[field]:
+        if stored.get(field, STORED_BEFORE.get(field)) != current.get(field, STORED_BEFORE.get(field)):
             raise RunMismatchError(f"{workdir} holds a run of another {what} than this config's; "
                                    "resume it with its own config or use a new --workdir")
 
