@@ -22,11 +22,13 @@ import signal
 import time
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 from flax import nnx
 
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.models import config as model_configs
-from kosmos_jax.models import weights
+from kosmos_jax.models import value_embeddings, weights
 from kosmos_jax.models.kosmos2 import build
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig
@@ -68,13 +70,22 @@ def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_c
                         connector_grid_code=model.get("connector_grid_code", 0.0))
 
 
-def initial_params(config, model_cfg: model_configs.Kosmos2Config):
+def initial_params(config, model_cfg: model_configs.Kosmos2Config, tokenizer, image_size: int):
     """Fresh parameters, or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
+    value_code = config.model.get("value_token_code", 0.0)  # .get: configs stored before the option
     if not config.init_from:
         if config.get("require_init"):
             raise ValueError(f"the {config.variant} variant starts from KOSMOS-2's weights: give "
                              "--config.init_from=FOLDER (config.json + model.safetensors)")
-        return split_model(build(model_cfg, config.train.seed))[1]
+        model = build(model_cfg, config.train.seed)
+        if value_code:
+            embedding = model.text_model.model.embed_tokens.embedding
+            embedding.set_value(jnp.asarray(value_embeddings.with_value_code(
+                np.asarray(embedding.get_value()), tokenizer.piece_texts(), value_code, image_size)))
+        return split_model(model)[1]
+    if value_code:
+        raise ValueError("model.value_token_code sets the start of embeddings trained from scratch; "
+                         "with config.init_from the embeddings are KOSMOS-2's: leave it at 0")
     model = weights.load_pretrained(config.init_from, seed=config.train.seed, compute_dtype=model_cfg.compute_dtype,
                                     remat=model_cfg.remat, scan_layers=model_cfg.scan_layers)
     if model.config.text.vocab_size < model_cfg.text.vocab_size:
@@ -181,7 +192,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
 
     return Task(
         description=description, batches=batches,
-        init_state=lambda: init_train_state(initial_params(config, model_cfg), tx, mesh),
+        init_state=lambda: init_train_state(
+            initial_params(config, model_cfg, tokenizer, dataset.identity["format"]["image_size"]), tx, mesh),
         abstract_state=lambda: abstract_train_state(model_cfg, tx, mesh),
         train_step=lambda state, host: train_step(state, distributed.process_batch(
             {k: host[k] for k in BATCH_KEYS}, sharding)),
