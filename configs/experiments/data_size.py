@@ -8,7 +8,7 @@ Cornell has). One arm sits on both lines. The runner writes WORKDIR/data_size.pn
 training examples, log x, error bars the std over folds) and data_size.json; x is each run's
 training-split example count as its build recorded it.
 
-cpu: synthetic scenes, instruction kind NON, KOSMOS-E from configs/kosmos_e.py:demo trained from
+cpu: synthetic scenes, instruction kind NON, KOSMOS-E from configs/kosmos_e.py:demo_kosmos2 trained from
 scratch for the same 200 steps in every arm, so the arms differ in data, not in compute: augmentations 2, 4, 8, 16 of 300 photos and
 100, 300, 1000, 3000 photos of 4 augmentations (about 640 to 19,000 training examples); honest
 protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds). Three image-wise folds
@@ -30,7 +30,7 @@ def get_config(arg: str | None = None):
         raise ValueError(f"unknown variant {variant!r} of configs/experiments/data_size.py; expected one of {VARIANTS}")
     if variant == "cpu":
         def cpu_arm(photos: int, augmentations: int, series: str):
-            return arm("configs/kosmos_e.py:demo", {"data.synthetic_photos": photos, "data.build.kinds": "non",
+            return arm("configs/kosmos_e.py:demo_kosmos2", {"data.synthetic_photos": photos, "data.build.kinds": "non",
                                                     "data.build.augmentations": augmentations,
                                                     "train.steps": CPU_STEPS}, series=series)
 

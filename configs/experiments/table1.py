@@ -9,7 +9,7 @@ GR-ConvNet RGB-D, GR-ConvNet RGB and GG-CNN2 depth (configs/baselines.py), on th
 views; the runner adds the image-centre and ground-truth-mean rows, scored on KOSMOS-E's test
 instructions (the baselines' test views are the same photos and crops, photos without depth aside).
 
-cpu: Cornell photos (../shared/data/cornell); KOSMOS-E from configs/kosmos_e.py:demo (trained from
+cpu: Cornell photos (../shared/data/cornell); KOSMOS-E from configs/kosmos_e.py:demo_kosmos2 (trained from
 scratch) for 300 steps, GR-ConvNet for 120 and GG-CNN2 for 400 (batch 8). Measured here (2 cores
 shared with other work, 2026-11-24, results/table1): a fold took 383 to 569 s (KOSMOS-E), 288 to
 705 s (GR-ConvNet) and 506 to 582 s (GG-CNN2) with its build and evaluation; fold 0 of 5 by
@@ -32,7 +32,7 @@ def get_config(arg: str | None = None):
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r} of configs/experiments/table1.py; expected one of {VARIANTS}")
     if variant == "cpu":
-        arms = {"kosmos_e": arm("configs/kosmos_e.py:demo", {"data.source": "cornell", "data.build.kinds": "non",
+        arms = {"kosmos_e": arm("configs/kosmos_e.py:demo_kosmos2", {"data.source": "cornell", "data.build.kinds": "non",
                                                              "train.steps": CPU_STEPS})}
         arms.update({name: arm(f"configs/baselines.py:{name}", {"data.source": "cornell",
                                                                 "train.steps": CPU_BASELINE_STEPS[name]})

@@ -9,7 +9,7 @@ Each arm is scored on its own fold's test split, whose instructions are the kind
 kinds they share. The no-learning rows come once per distinct test set.
 
 cpu: synthetic scenes (300 photos, 4 augmentations a training photo), KOSMOS-E from
-configs/kosmos_e.py:demo trained from scratch for 200 steps, max_length 144 (ALL's longest example on synthetic scenes is
+configs/kosmos_e.py:demo_kosmos2 trained from scratch for 200 steps, max_length 144 (ALL's longest example on synthetic scenes is
 about 120 tokens); honest protocol, image-wise folds 0, 1 and 2 of 5 by default (12 folds). Fold 0 of
 the four arms took 514 to 775 s a fold, 2,536 s in all, on 2 shared cores (results/table2).
 paper: configs/kosmos_e.py:paper (Cornell with KOSMOS-E's annotations, KOSMOS-2 initialisation:
@@ -28,7 +28,7 @@ def get_config(arg: str | None = None):
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r} of configs/experiments/table2.py; expected one of {VARIANTS}")
     if variant == "cpu":
-        arms = {mix: arm("configs/kosmos_e.py:demo", {"data.build.kinds": mix, "data.build.augmentations": 4,
+        arms = {mix: arm("configs/kosmos_e.py:demo_kosmos2", {"data.build.kinds": mix, "data.build.augmentations": 4,
                                                       "data.build.max_length": 144, "train.steps": CPU_STEPS})
                 for mix in MIXES}
         return experiment("table2", arms, schemes="image", protocols="honest", folds="0,1,2")

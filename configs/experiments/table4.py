@@ -4,7 +4,7 @@ joint outputs (one answer holds the whole grasp), each with the angle as a 256-b
     python -m kosmos_jax.experiments --config=configs/experiments/table4.py:cpu --workdir=runs/table4
 
 cpu: synthetic scenes (the demo's 300 photos and 16 augmentations), instruction kind NON,
-KOSMOS-E from configs/kosmos_e.py:demo trained from scratch for 300 steps (a 300-step fold of Table I took
+KOSMOS-E from configs/kosmos_e.py:demo_kosmos2 trained from scratch for 300 steps (a 300-step fold of Table I took
 383 to 569 s on 2 shared cores; this config has not been run here); honest protocol, image-wise
 folds 0, 1 and 2 of 5 by default (12 folds). paper: configs/kosmos_e.py:paper (Cornell, every instruction kind,
 KOSMOS-2 initialisation: --config.init_from), both protocols, image-wise, every fold.
@@ -29,6 +29,6 @@ def get_config(arg: str | None = None):
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r} of configs/experiments/table4.py; expected one of {VARIANTS}")
     if variant == "cpu":
-        arms = arms_of("configs/kosmos_e.py:demo", {"data.build.kinds": "non", "train.steps": CPU_STEPS})
+        arms = arms_of("configs/kosmos_e.py:demo_kosmos2", {"data.build.kinds": "non", "train.steps": CPU_STEPS})
         return experiment("table4", arms, schemes="image", protocols="honest", folds="0,1,2")
     return experiment("table4", arms_of("configs/kosmos_e.py:paper", {}), schemes="image", protocols="honest,paper")
