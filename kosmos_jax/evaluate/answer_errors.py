@@ -1,0 +1,91 @@
+"""How far a run's decoded answers fall from their targets: centre distance and angle error.
+
+    python -m kosmos_jax.evaluate.answer_errors --workdir=runs/demo [--step=N] [--json]
+
+Reads WORKDIR/eval/STEP/answers.jsonl (run `python -m kosmos_jax.evaluate --workdir=...` first).
+Each answer is compared with its example's own target grasp (one ground truth of the view, the one
+the example was formatted from), not with the nearest ground truth as the rectangle metric does:
+these figures say where the misses come from, the metric says what counts. Centre distances are in
+pixels of the view (the grasp text's image), angle errors in degrees modulo 180. An answer that does
+not parse counts as a miss at every threshold and is left out of the median.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+
+import numpy as np
+
+from kosmos_jax.evaluate.run import RunError, chosen_step, read_description
+from kosmos_jax.text.formatter import FormatConfig, parse_target
+
+CENTRE_PX = (10, 20)
+ANGLE_DEG = (15, 30)
+
+
+def answer_errors(row: dict, config: FormatConfig) -> tuple[float, float]:
+    """(centre distance px, angle error deg) of one answers.jsonl row; NaN where the part does not
+    state it, inf where the answer does not parse."""
+    target = parse_target(row["target_text"], row["part"], config).grasp
+    parsed = parse_target(row["answer"], row["part"], config)
+    answer = parsed.grasp if parsed.ok else np.full(5, np.inf)
+    centre = math.hypot(*(answer[:2] - target[:2])) if not np.isnan(target[:2]).any() else math.nan
+    if np.isnan(target[4]):
+        return centre, math.nan
+    angle = abs(math.degrees(answer[4] - target[4])) % 180 if parsed.ok else math.inf
+    return centre, min(angle, 180 - angle)
+
+
+def summarise(errors: np.ndarray, thresholds: tuple[int, ...], unit: str) -> dict | None:
+    errors = errors[~np.isnan(errors)]
+    if not len(errors):
+        return None
+    parsed = errors[np.isfinite(errors)]
+    return {"answers": int(len(errors)), "unparsed": int(len(errors) - len(parsed)),
+            "median": round(float(np.median(parsed)), 2) if len(parsed) else None,
+            **{f"within_{t}_{unit}": round(float((errors <= t).mean()), 4) for t in thresholds}}
+
+
+def error_summary(rows: list[dict], config: FormatConfig) -> dict:
+    """{"centre": {...}, "angle": {...}, "distinct_answers": n}: medians and the share within each threshold."""
+    errors = np.array([answer_errors(row, config) for row in rows], np.float64).reshape(-1, 2)
+    return {"centre_px": summarise(errors[:, 0], CENTRE_PX, "px"), "angle_deg": summarise(errors[:, 1], ANGLE_DEG, "deg"),
+            "examples": len(rows), "distinct_answers": len({row["answer"] for row in rows})}
+
+
+def read_answers(workdir: pathlib.Path, step: int) -> list[dict]:
+    path = workdir / "eval" / str(step) / "answers.jsonl"
+    if not path.is_file():
+        raise RunError(f"no {path}: score the run first with python -m kosmos_jax.evaluate --workdir={workdir} --step={step}")
+    return [json.loads(line) for line in path.read_text().splitlines() if line]
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate.answer_errors", description=__doc__.splitlines()[0])
+    parser.add_argument("--workdir", required=True, help="the training run's folder")
+    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    args = parser.parse_args(argv)
+    workdir = pathlib.Path(args.workdir)
+    try:
+        config = FormatConfig(**read_description(workdir)["data_identity"]["format"])
+        step = chosen_step(workdir, args.step)
+        summary = {"step": step, **error_summary(read_answers(workdir, step), config)}
+    except RunError as error:
+        raise SystemExit(f"error: {error}") from None
+    if args.json:
+        print(json.dumps(summary))
+        return
+    print(f"step {step}: {summary['examples']} answers, {summary['distinct_answers']} distinct; against each example's target grasp")
+    for part, figures in (("centre", summary["centre_px"]), ("angle", summary["angle_deg"])):
+        if figures:
+            within = ", ".join(f"{v:.0%} {k.removeprefix('within_').replace('_', ' ')}" for k, v in figures.items()
+                               if k.startswith("within_"))
+            print(f"  {part}: {figures['answers']} answers ({figures['unparsed']} unparsed), median {figures['median']}, within: {within}")
+
+
+if __name__ == "__main__":
+    main()
