@@ -1,4 +1,9 @@
-"""Shared test fixtures: the real data beside the repository, and eight fake CPU devices."""
+"""Shared test fixtures: the real data beside the repository, and eight fake CPU devices.
+
+Fixtures that train a run or build a dataset are session-scoped even where one module uses them:
+under xdist a worker interleaves the tests of several modules, and pytest tears a module-scoped
+fixture down (and builds it again) whenever another module's test comes between two of its own.
+"""
 
 import os
 import pathlib

@@ -214,7 +214,7 @@ def test_one_adam_step_lowers_the_loss(network, mode):
 
 # -- inputs from synthetic photos ----------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def synthetic_photos(tmp_path_factory):
     root = tmp_path_factory.mktemp("synthetic") / "scenes"
     scenes.write_dataset(root, 6, seed=0)

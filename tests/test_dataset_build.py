@@ -28,7 +28,7 @@ from kosmos_jax.text.formatter import FormatConfig, TextExample, parse_target
 PHOTOS = 15  # 5 objects: enough for 5 object-wise folds
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def source(tmp_path_factory):
     root = tmp_path_factory.mktemp("synthetic")
     shutil.rmtree(root)
@@ -75,7 +75,7 @@ def _records(split_source):
     return [split_source[i] for i in range(len(split_source))]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def written(source, tmp_path_factory):
     out = tmp_path_factory.mktemp("built")
     stats = build(BuildConfig(source=str(source), out=str(out), split="object", fold=1, augmentations=2))
@@ -179,7 +179,7 @@ def test_fold_seed_is_in_the_cli_and_the_dataset_name(source, tmp_path, capsys):
     assert paper["identity"]["build"]["fold_seed"] == splits.PAPER_SEED  # the public code's folds by default
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def rules_source(source, tmp_path_factory):
     """The synthetic photos without their metadata (so colour comes from pixels), one of them blank."""
     root = tmp_path_factory.mktemp("rules") / "cornell"

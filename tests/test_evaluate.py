@@ -40,7 +40,7 @@ def run_module(*args) -> subprocess.CompletedProcess:
                           timeout=600)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def workdir(tmp_path_factory):
     """A tiny run of two steps, written by the trainer."""
     workdir, root = tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets")
@@ -51,7 +51,7 @@ def workdir(tmp_path_factory):
     return workdir
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def evaluated(workdir):
     """`python -m kosmos_jax.evaluate --workdir=W --json`: (stdout, results folder)."""
     done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", "--json")

@@ -29,7 +29,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 STEPS = 2
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def workdir(tmp_path_factory):
     root = tmp_path_factory.mktemp("baseline_eval")
     workdir = root / "run"
@@ -50,7 +50,7 @@ def run_cli(*args) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def evaluated(workdir):
     code, out, err = run_cli(f"--workdir={workdir}", "--json")
     assert code == 0, err[-3000:]

@@ -337,8 +337,8 @@ def test_data_size_files(tmp_path):
 # -- the experiment configs ------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("variant", ["cpu", "paper"])
-@pytest.mark.parametrize("name", EXPERIMENTS)
+@pytest.mark.parametrize("name,variant", [(name, variant) for name in EXPERIMENTS for variant in ("cpu", "paper")]
+                         + [("data_size", "cpu_demo")])
 def test_experiment_config_builds(name, variant):
     config = spec.load_config(f"configs/experiments/{name}.py:{variant}")
     reports = checks.check_experiment(config)
@@ -366,6 +366,17 @@ def test_cpu_kosmos_arms_build_on_the_demo_config(name):
         assert built.model == demo.model and built.optimizer == demo.optimizer
         assert built.train.batch_size == demo.train.batch_size
         assert "model" not in config.arms[name_].overrides and "optimizer" not in config.arms[name_].overrides
+
+
+def test_the_cpu_demo_data_sweep_is_the_demo_recipe_with_other_photo_counts():
+    demo = spec.load_config("configs/kosmos_e.py:demo")
+    config = spec.load_config("configs/experiments/data_size.py:cpu_demo")
+    for name in spec.arm_names(config):
+        built = spec.arm_config(config, name)
+        assert built.model == demo.model and built.optimizer == demo.optimizer and built.train == demo.train
+        changed = {key for key in demo.data.build.keys() if built.data.build[key] != demo.data.build[key]}
+        assert changed <= {"kinds"} and built.data.build.kinds == "non"
+    assert [spec.arm_config(config, n).data.synthetic_photos for n in spec.arm_names(config)] == [100, 300, 1000]
 
 
 def test_table1_cpu_reads_cornell_and_its_baselines():

@@ -68,7 +68,7 @@ def test_walkthrough_runs(tmp_path):
 # -- the case study ----------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def case_study(tmp_path_factory):
     """The case study as a reader without a run executes it: it trains `tiny` in a temporary folder."""
     tmp = tmp_path_factory.mktemp("case_study")

@@ -48,7 +48,7 @@ def one_device():
     return make_mesh(1, 1, 1, devices=jax.devices()[:1])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def workdir(tmp_path_factory):
     """A tiny run of two steps, written by the trainer."""
     workdir, root = tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets")

@@ -283,7 +283,7 @@ def sandbox_env(**extra: str) -> dict[str, str]:
     return env
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def sandbox(tmp_path_factory) -> pathlib.Path:
     """A folder where README commands run as in the repository, holding runs/tiny (the README's tiny
     training command, 2 steps) and photo.png (a synthetic scene's photo)."""

@@ -32,7 +32,7 @@ SEED = 7
 MASK_THRESHOLD_M = 0.004  # half the generator's minimum object height
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("synthetic") / "cornell"
     scenes.write_dataset(root, PHOTOS, SEED)

@@ -25,7 +25,7 @@ STEPS = 20
 COMMON = ("--config.optimizer.decay_steps=20", "--config.train.checkpoint_every=5", "--config.train.eval_every=10")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def dataset_dir(tmp_path_factory):
     """The tiny config's dataset, built once (in this process) for every run of the module."""
     sys.path.insert(0, str(REPO / "configs"))
@@ -75,7 +75,7 @@ def wait_for_step(process: subprocess.Popen, workdir: pathlib.Path, step: int, t
     raise AssertionError(f"no step {step} within {timeout} s")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def reference(dataset_dir, tmp_path_factory):
     """An uninterrupted 20-step run on one device."""
     workdir = tmp_path_factory.mktemp("reference")

@@ -30,7 +30,7 @@ def train(workdir, data_root, *overrides) -> subprocess.CompletedProcess:
     return done
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def runs(tmp_path_factory):
     """An uninterrupted run of STEPS steps, and one stopped at step 2 and resumed to STEPS."""
     root = tmp_path_factory.mktemp("baseline_runs")
