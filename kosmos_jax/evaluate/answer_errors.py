@@ -19,6 +19,7 @@ import pathlib
 
 import numpy as np
 
+from kosmos_jax import geometry
 from kosmos_jax.evaluate.run import RunError, chosen_step, read_description
 from kosmos_jax.text.formatter import FormatConfig, parse_target
 
@@ -35,8 +36,7 @@ def answer_errors(row: dict, config: FormatConfig) -> tuple[float, float]:
     centre = math.hypot(*(answer[:2] - target[:2])) if not np.isnan(target[:2]).any() else math.nan
     if np.isnan(target[4]):
         return centre, math.nan
-    angle = abs(math.degrees(answer[4] - target[4])) % 180 if parsed.ok else math.inf
-    return centre, min(angle, 180 - angle)
+    return centre, math.degrees(geometry.angle_difference(answer[4], target[4])) if parsed.ok else math.inf
 
 
 def summarise(errors: np.ndarray, thresholds: tuple[int, ...], unit: str) -> dict | None:
