@@ -5,7 +5,7 @@ import pytest
 
 from configs import kosmos_e
 from kosmos_jax.models import config as model_configs
-from kosmos_jax.models.value_embeddings import value_code, value_phase, value_rows, with_value_code
+from kosmos_jax.models.value_embeddings import VALUE_TOKEN, value_code, value_phases, value_rows, with_value_code
 from kosmos_jax.text.tokenizer import train_tokenizer
 from kosmos_jax.train import trainer
 
@@ -13,8 +13,7 @@ TEXTS = ["Grasp center point coordinates: x_24,y_191", "Grasp rotation angle in 
 
 
 def test_codes_are_unit_rows_whose_likeness_falls_with_the_distance_of_their_values():
-    pixels = np.arange(224)
-    code = value_code(np.array([value_phase("x", v, 224) for v in pixels]), 128)
+    code = value_code(value_phases("x", np.arange(224.0)), 128)
     np.testing.assert_allclose(np.linalg.norm(code, axis=1), 1.0, rtol=1e-6)
     likeness = code @ code[100]
     near = likeness[100:121]  # x_100 .. x_120
@@ -25,7 +24,7 @@ def test_codes_are_unit_rows_whose_likeness_falls_with_the_distance_of_their_val
 
 
 def test_angle_codes_wrap_round():
-    codes = value_code(np.array([value_phase("a", k, 224) for k in (0, 1, 128, 255)]), 64)
+    codes = value_code(value_phases("a", np.array([0.0, 1.0, 128.0, 255.0])), 64)
     assert codes[0] @ codes[3] == pytest.approx(codes[0] @ codes[1], rel=1e-6)  # a_255 is a_0's neighbour
     assert abs(codes[0] @ codes[2]) < 0.1
 
@@ -36,6 +35,13 @@ def test_value_rows_finds_every_value_token_and_nothing_else():
     assert {family: ids.tolist() for family, (ids, _) in rows.items()} == {
         "x": [1, 2], "y": [3], "a": [4], "w": [5], "h": [6]}
     np.testing.assert_allclose(rows["x"][1], [0.0, np.pi * 223 / 224])
+
+
+def test_a_range_below_zero_spans_half_a_turn_so_its_ends_stay_apart():
+    """tlbra's corners run from -224 to 448: each family's phases come from its own range."""
+    _, phases = value_rows(["x_-224", "x_224", "x_448"])["x"]
+    codes = value_code(phases, 128)
+    assert abs(codes[0] @ codes[1]) < 0.1 and abs(codes[0] @ codes[2]) < 0.1  # a 224 px turn would make x_224 x_-224
 
 
 def test_with_value_code_adds_the_code_to_value_rows_only():
@@ -67,7 +73,7 @@ def test_fresh_parameters_start_with_near_values_near_and_digit_tokenizers_are_r
     ids = [values.token_id(t) for t in ("x_60", "x_61", "x_200")]
 
     def rows(code):
-        params = trainer.initial_params(_tiny_config(code), cfg, values, 224)
+        params = trainer.initial_params(_tiny_config(code), cfg, values)
         table = np.asarray(params["text_model"]["model"]["embed_tokens"]["embedding"].get_value())
         return table / np.linalg.norm(table, axis=1, keepdims=True)
 
@@ -75,11 +81,12 @@ def test_fresh_parameters_start_with_near_values_near_and_digit_tokenizers_are_r
     x60, x61, x200 = coded[ids]
     assert x60 @ x61 > 0.7 and abs(x60 @ x200) < 0.3
     assert abs(plain[ids[0]] @ plain[ids[1]]) < 0.5  # random rows: no such likeness without the code
-    np.testing.assert_array_equal(np.delete(coded, ids, axis=0)[:4], plain[:4])  # other rows as built
+    others = [i for i, piece in enumerate(values.piece_texts()) if not VALUE_TOKEN.match(piece)]
+    np.testing.assert_array_equal(coded[others], plain[others])  # every other row as built
 
     digits = train_tokenizer(TEXTS, numbers="digits", text_pieces=50)
     with pytest.raises(ValueError, match="numbers=values"):
-        trainer.initial_params(_tiny_config(1.0), model_configs.TINY.with_vocab_size(digits.vocab_size), digits, 224)
+        trainer.initial_params(_tiny_config(1.0), model_configs.TINY.with_vocab_size(digits.vocab_size), digits)
 
 
 def test_the_code_is_refused_over_kosmos_2_weights():
@@ -87,4 +94,4 @@ def test_the_code_is_refused_over_kosmos_2_weights():
     config.init_from = "/nonexistent"
     values = train_tokenizer(TEXTS, numbers="values", text_pieces=50)
     with pytest.raises(ValueError, match="value_token_code"):
-        trainer.initial_params(config, model_configs.TINY.with_vocab_size(values.vocab_size), values, 224)
+        trainer.initial_params(config, model_configs.TINY.with_vocab_size(values.vocab_size), values)

@@ -33,27 +33,28 @@ def value_code(phases: np.ndarray, width: int) -> np.ndarray:
     return code / np.linalg.norm(code, axis=1, keepdims=True)
 
 
-def value_phase(family: str, value: int, image_size: int) -> float:
-    """Angle codes wrap (a_0 lies next to a_255); pixel values do not: half a turn spans the image."""
+def value_phases(family: str, values: np.ndarray) -> np.ndarray:
+    """Angle codes wrap (a_0 lies next to a_255); other values do not: the family's range in the
+    vocabulary (x_0..x_223, or tlbra's -224..448) spans half a turn."""
     if family == "a":
-        return 2 * np.pi * value / geometry.ANGLE_BINS
-    return np.pi * value / image_size
+        return 2 * np.pi * values / geometry.ANGLE_BINS
+    return np.pi * (values - values.min()) / (values.max() - values.min() + 1)
 
 
-def value_rows(pieces: list[str], image_size: int = 224) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def value_rows(pieces: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """{family: (ids, phases)} of the value tokens among `pieces` (the tokenizer's text of each id)."""
-    found: dict[str, list[tuple[int, float]]] = {}
+    found: dict[str, list[tuple[int, int]]] = {}
     for token_id, piece in enumerate(pieces):
         match = VALUE_TOKEN.match(piece)
         if match:
-            family, value = match.group(1), int(match.group(2))
-            found.setdefault(family, []).append((token_id, value_phase(family, value, image_size)))
-    return {family: (np.array([i for i, _ in rows]), np.array([p for _, p in rows])) for family, rows in found.items()}
+            found.setdefault(match.group(1), []).append((token_id, int(match.group(2))))
+    return {family: (np.array([i for i, _ in rows]), value_phases(family, np.array([v for _, v in rows], np.float64)))
+            for family, rows in found.items()}
 
 
-def with_value_code(embedding: np.ndarray, pieces: list[str], amplitude: float, image_size: int = 224) -> np.ndarray:
+def with_value_code(embedding: np.ndarray, pieces: list[str], amplitude: float) -> np.ndarray:
     """embedding [V, D] with `amplitude` times each value token's code added to its row."""
-    rows = value_rows(pieces, image_size)
+    rows = value_rows(pieces)
     if not rows:
         raise ValueError("model.value_token_code needs value tokens in the vocabulary "
                          "(build the data with --config.data.build.numbers=values)")

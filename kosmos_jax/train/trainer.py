@@ -70,7 +70,7 @@ def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_c
                         connector_grid_code=model.get("connector_grid_code", 0.0))
 
 
-def initial_params(config, model_cfg: model_configs.Kosmos2Config, tokenizer, image_size: int):
+def initial_params(config, model_cfg: model_configs.Kosmos2Config, tokenizer):
     """Fresh parameters, or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
     value_code = config.model.get("value_token_code", 0.0)  # .get: configs stored before the option
     if not config.init_from:
@@ -81,7 +81,7 @@ def initial_params(config, model_cfg: model_configs.Kosmos2Config, tokenizer, im
         if value_code:
             embedding = model.text_model.model.embed_tokens.embedding
             embedding.set_value(jnp.asarray(value_embeddings.with_value_code(
-                np.asarray(embedding.get_value()), tokenizer.piece_texts(), value_code, image_size)))
+                np.asarray(embedding.get_value()), tokenizer.piece_texts(), value_code)))
         return split_model(model)[1]
     if value_code:
         raise ValueError("model.value_token_code sets the start of embeddings trained from scratch; "
@@ -192,8 +192,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
 
     return Task(
         description=description, batches=batches,
-        init_state=lambda: init_train_state(
-            initial_params(config, model_cfg, tokenizer, dataset.identity["format"]["image_size"]), tx, mesh),
+        init_state=lambda: init_train_state(initial_params(config, model_cfg, tokenizer), tx, mesh),
         abstract_state=lambda: abstract_train_state(model_cfg, tx, mesh),
         train_step=lambda state, host: train_step(state, distributed.process_batch(
             {k: host[k] for k in BATCH_KEYS}, sharding)),
