@@ -50,7 +50,8 @@ def summarise(errors: np.ndarray, thresholds: tuple[int, ...], unit: str) -> dic
 
 
 def error_summary(rows: list[dict], config: FormatConfig) -> dict:
-    """{"centre": {...}, "angle": {...}, "distinct_answers": n}: medians and the share within each threshold."""
+    """{"centre_px": {...}, "angle_deg": {...}, "examples": n, "distinct_answers": n}: per part, the median
+    and the share within each threshold (None for a part no row states)."""
     errors = np.array([answer_errors(row, config) for row in rows], np.float64).reshape(-1, 2)
     return {"centre_px": summarise(errors[:, 0], CENTRE_PX, "px"), "angle_deg": summarise(errors[:, 1], ANGLE_DEG, "deg"),
             "examples": len(rows), "distinct_answers": len({row["answer"] for row in rows})}
