@@ -18,6 +18,7 @@ from kosmos_jax.experiments.spec import ExperimentError, arm, experiment
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 EXPERIMENTS = ("table1", "table2", "table3", "table4", "table5", "data_size")
+DEMO_EXPERIMENTS = ("table1", "table2", "data_size")  # those with a cpu_demo variant
 
 
 # -- fold lists, arms, training configs ------------------------------------------------------------
@@ -338,7 +339,7 @@ def test_data_size_files(tmp_path):
 
 
 @pytest.mark.parametrize("name,variant", [(name, variant) for name in EXPERIMENTS for variant in ("cpu", "paper")]
-                         + [("data_size", "cpu_demo")])
+                         + [(name, "cpu_demo") for name in DEMO_EXPERIMENTS])
 def test_experiment_config_builds(name, variant):
     config = spec.load_config(f"configs/experiments/{name}.py:{variant}")
     reports = checks.check_experiment(config)
@@ -368,15 +369,43 @@ def test_cpu_kosmos_arms_build_on_the_demo_config(name):
         assert "model" not in config.arms[name_].overrides and "optimizer" not in config.arms[name_].overrides
 
 
-def test_the_cpu_demo_data_sweep_is_the_demo_recipe_with_other_photo_counts():
+# what each cpu_demo variant may change in the demo's data build, besides the instruction kinds
+DEMO_BUILD_CHANGES = {"data_size": set(), "table1": set(), "table2": {"augmentations", "max_length"}}
+
+
+@pytest.mark.parametrize("name", DEMO_EXPERIMENTS)
+def test_the_cpu_demo_variants_train_the_demo_recipe(name):
     demo = spec.load_config("configs/kosmos_e.py:demo")
-    config = spec.load_config("configs/experiments/data_size.py:cpu_demo")
-    for name in spec.arm_names(config):
-        built = spec.arm_config(config, name)
+    config = spec.load_config(f"configs/experiments/{name}.py:cpu_demo")
+    for arm_name in spec.arm_names(config):
+        assert config.arms[arm_name].config == "configs/kosmos_e.py:demo"
+        built = spec.arm_config(config, arm_name)
         assert built.model == demo.model and built.optimizer == demo.optimizer and built.train == demo.train
         changed = {key for key in demo.data.build.keys() if built.data.build[key] != demo.data.build[key]}
-        assert changed <= {"kinds"} and built.data.build.kinds == "non"
+        assert changed <= {"kinds"} | DEMO_BUILD_CHANGES[name]
+        assert built.data.build.train_crop == "image_centre" and built.data.build.numbers == "values"
+    assert config.protocols == "honest"  # the demo's photo-centre crops would replace the paper protocol's own
+
+
+def test_the_cpu_demo_data_sweep_counts_photos():
+    config = spec.load_config("configs/experiments/data_size.py:cpu_demo")
     assert [spec.arm_config(config, n).data.synthetic_photos for n in spec.arm_names(config)] == [100, 300, 1000]
+    assert all(spec.arm_config(config, n).data.build.kinds == "non" for n in spec.arm_names(config))
+
+
+def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():
+    """Their rows sit beside the cpu variants' (whose baselines they do not train again): same data,
+    schemes, first fold and instruction kinds."""
+    for name in ("table1", "table2"):
+        cpu = spec.load_config(f"configs/experiments/{name}.py:cpu")
+        demo = spec.load_config(f"configs/experiments/{name}.py:cpu_demo")
+        assert demo.schemes == cpu.schemes and spec.parse_folds(demo.folds, demo.k) == [0]
+        for arm_name in spec.arm_names(demo):
+            ours, theirs = spec.arm_config(demo, arm_name), spec.arm_config(cpu, arm_name)
+            assert ours.data.source == theirs.data.source and ours.data.build.kinds == theirs.data.build.kinds
+            assert ours.data.build.augmentations == theirs.data.build.augmentations
+    assert spec.arm_names(spec.load_config("configs/experiments/table1.py:cpu_demo")) == ["kosmos_e"]
+    assert spec.arm_names(spec.load_config("configs/experiments/table2.py:cpu_demo")) == ["non", "single", "multi", "all"]
 
 
 def test_table1_cpu_reads_cornell_and_its_baselines():
