@@ -18,7 +18,7 @@ from kosmos_jax.experiments.spec import ExperimentError, arm, experiment
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 EXPERIMENTS = ("table1", "table2", "table3", "table4", "table5", "data_size")
-DEMO_EXPERIMENTS = ("table1", "table2", "data_size")  # those with a cpu_demo variant
+DEMO_EXPERIMENTS = ("table1", "table2", "table3", "data_size")  # those with a cpu_demo variant
 
 
 # -- fold lists, arms, training configs ------------------------------------------------------------
@@ -370,7 +370,8 @@ def test_cpu_kosmos_arms_build_on_the_demo_config(name):
 
 
 # what each cpu_demo variant may change in the demo's data build, besides the instruction kinds
-DEMO_BUILD_CHANGES = {"data_size": set(), "table1": set(), "table2": {"augmentations", "max_length"}}
+DEMO_BUILD_CHANGES = {"data_size": set(), "table1": set(), "table2": {"augmentations", "max_length"},
+                      "table3": {"representation"}}
 
 
 @pytest.mark.parametrize("name", DEMO_EXPERIMENTS)
@@ -396,7 +397,7 @@ def test_the_cpu_demo_data_sweep_counts_photos():
 def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():
     """Their rows sit beside the cpu variants' (whose baselines they do not train again): same data,
     schemes, first fold and instruction kinds."""
-    for name in ("table1", "table2"):
+    for name in ("table1", "table2", "table3"):
         cpu = spec.load_config(f"configs/experiments/{name}.py:cpu")
         demo = spec.load_config(f"configs/experiments/{name}.py:cpu_demo")
         assert demo.schemes == cpu.schemes and spec.parse_folds(demo.folds, demo.k) == [0]
@@ -404,6 +405,7 @@ def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():
             ours, theirs = spec.arm_config(demo, arm_name), spec.arm_config(cpu, arm_name)
             assert ours.data.source == theirs.data.source and ours.data.build.kinds == theirs.data.build.kinds
             assert ours.data.build.augmentations == theirs.data.build.augmentations
+            assert ours.data.build.representation == theirs.data.build.representation
     assert spec.arm_names(spec.load_config("configs/experiments/table1.py:cpu_demo")) == ["kosmos_e"]
     assert spec.arm_names(spec.load_config("configs/experiments/table2.py:cpu_demo")) == ["non", "single", "multi", "all"]
 
