@@ -196,6 +196,14 @@ def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(wo
     np.testing.assert_array_equal(image_use.other_images(np.asarray([7, 7, 8, 8, 9])), [8, 8, 9, 9, 7])
     with pytest.raises(ValueError, match="same image"):
         image_use.other_images(np.zeros((4, 2, 2, 3), np.uint8))
+    # a batch of one photo's rows takes the first spare that is another photo
+    np.testing.assert_array_equal(image_use.other_images(np.asarray([7, 7]), np.asarray([7, 8])), [8, 8])
+    with pytest.raises(ValueError, match="same image"):
+        image_use.other_images(np.asarray([7, 7]), np.asarray([7, 7]))
+    batches = [{"image": np.asarray([5, 5, 0]), "example_index": np.asarray([0, 1, -1])},  # -1: a padding row
+               {"image": np.asarray([5, 6]), "example_index": np.asarray([2, 3])}]
+    np.testing.assert_array_equal(image_use.spare_images(batches), [5, 6])
+    assert image_use.spare_images(batches[:1]) is None
     result = image_use.image_use(workdir, batches=4, batch_size=8)  # the tiny config's eval batches
     logged = [r for r in read_metrics(workdir) if r.get("split") == "test" and "loss" in r][-1]
     assert result["step"] == 2 and result["tokens"] == logged["tokens"] > 0

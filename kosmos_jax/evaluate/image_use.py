@@ -1,6 +1,7 @@
 """Does a trained KOSMOS-E read its image? The loss on the answer tokens of a split three ways: each
 example with its own image, with another photo's image (the next row of the batch whose image
-differs) and with a blank image.
+differs, or one of the split's first two photos where the whole batch is one photo's) and with a
+blank image.
 
     python -m kosmos_jax.evaluate.image_use --workdir=runs/demo [--step=N] [--split=test] [--batches=4] [--json]
 
@@ -27,20 +28,38 @@ from kosmos_jax.train.step import BATCH_KEYS, make_eval_step
 IMAGES = ("own", "other", "blank")
 
 
-def other_images(images: np.ndarray) -> np.ndarray:
+def other_images(images: np.ndarray, spares: np.ndarray | None = None) -> np.ndarray:
     """Each row's image replaced by that of the next row (cyclically) whose image differs. The rows of
-    one photo's instruction (its centre part and its angle part) sit side by side and share one image,
-    so a plain roll by one would hand every other row its own photo back."""
+    one photo's instructions sit side by side and share one image, so a plain roll by one would hand
+    every other row its own photo back. A batch that holds one photo only (a photo with more
+    instructions than a batch has rows) takes the first of `spares` that differs from it."""
     count = len(images)
     flat = images.reshape(count, -1)
     others = np.empty_like(images)
     for row in range(count):
         shift = next((shift for shift in range(1, count)
                       if not np.array_equal(flat[(row + shift) % count], flat[row])), None)
-        if shift is None:
+        if shift is not None:
+            others[row] = images[(row + shift) % count]
+            continue
+        spare = next((spare for spare in ([] if spares is None else spares)
+                      if not np.array_equal(spare.reshape(-1), flat[row])), None)
+        if spare is None:
             raise ValueError("every row of the batch holds the same image: no other photo's image to swap in")
-        others[row] = images[(row + shift) % count]
+        others[row] = spare
     return others
+
+
+def spare_images(batches) -> np.ndarray | None:
+    """The first two distinct images of `batches` (None when the split has fewer)."""
+    found = []
+    for batch in batches:
+        for image in batch["image"][batch["example_index"] >= 0]:
+            if not any(np.array_equal(image, seen) for seen in found):
+                found.append(image)
+            if len(found) == 2:
+                return np.stack(found)
+    return None
 
 
 def image_use(workdir, step: int | None = None, split: str = "test", batches: int = 4, batch_size: int = 16) -> dict:
@@ -56,10 +75,11 @@ def image_use(workdir, step: int | None = None, split: str = "test", batches: in
     eval_step, sharding = make_eval_step(run.model_config, mesh), batch_sharding(mesh)
     totals = {name: {"loss_sum": 0.0, "correct": 0, "tokens": 0} for name in IMAGES}
     examples = 0
+    spares = spare_images(data_lib.eval_batches(run.split(split), batch_size, 0, 1, 0))
     for batch in data_lib.eval_batches(run.split(split), batch_size, 0, 1, batches):
         examples += int(np.sum(batch["example_index"] >= 0))
         rest = {key: jax.device_put(batch[key], sharding) for key in BATCH_KEYS if key != "image"}
-        images = {"own": batch["image"], "other": other_images(batch["image"]), "blank": np.zeros_like(batch["image"])}
+        images = {"own": batch["image"], "other": other_images(batch["image"], spares), "blank": np.zeros_like(batch["image"])}
         for name in IMAGES:
             sums = jax.device_get(eval_step(params, {**rest, "image": jax.device_put(images[name], sharding)}))
             for key in totals[name]:
