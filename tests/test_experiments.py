@@ -370,7 +370,7 @@ def test_cpu_kosmos_arms_build_on_the_demo_config(name):
 
 
 # what each cpu_demo variant may change in the demo's data build, besides the instruction kinds
-DEMO_BUILD_CHANGES = {"data_size": set(), "table1": set(), "table2": {"augmentations", "max_length"},
+DEMO_BUILD_CHANGES = {"data_size": {"augmentations"}, "table1": set(), "table2": {"augmentations", "max_length"},
                       "table3": {"representation"}}
 
 
@@ -388,10 +388,19 @@ def test_the_cpu_demo_variants_train_the_demo_recipe(name):
     assert config.protocols == "honest"  # the demo's photo-centre crops would replace the paper protocol's own
 
 
-def test_the_cpu_demo_data_sweep_counts_photos():
+def test_the_cpu_demo_data_sweep_counts_photos_and_augmentations():
+    """Two lines that meet at the demo itself (300 photos of 16 augmentations), both schemes."""
     config = spec.load_config("configs/experiments/data_size.py:cpu_demo")
-    assert [spec.arm_config(config, n).data.synthetic_photos for n in spec.arm_names(config)] == [100, 300, 1000]
-    assert all(spec.arm_config(config, n).data.build.kinds == "non" for n in spec.arm_names(config))
+    built = {n: spec.arm_config(config, n) for n in spec.arm_names(config)}
+    series = {n: set(config.arms[n].series.split(",")) for n in built}
+    photos = sorted((b.data.synthetic_photos, b.data.build.augmentations) for n, b in built.items() if "photos" in series[n])
+    augmentations = sorted((b.data.synthetic_photos, b.data.build.augmentations)
+                           for n, b in built.items() if "augmentations" in series[n])
+    assert photos == [(100, 16), (300, 16), (1000, 16)]
+    assert augmentations == [(300, 4), (300, 8), (300, 16)]
+    assert built["photos300_aug16"].data == spec.load_config("configs/kosmos_e.py:demo").data
+    assert all(b.data.build.kinds == "non" for b in built.values())
+    assert config.schemes == "image,object"
 
 
 def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():

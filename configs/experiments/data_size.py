@@ -13,10 +13,11 @@ scratch for the same 200 steps in every arm, so the arms differ in data, not in 
 100, 300, 1000, 3000 photos of 4 augmentations (about 640 to 19,000 training examples); honest
 protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds). Three image-wise folds
 took 546 to 1,015 s each on 2 shared cores (results/data_size).
-cpu_demo: the photos series again with the demo recipe (configs/kosmos_e.py:demo: photo-centre
-training crops, value tokens, the pointing connector), whose answers do depend on the photo: 100,
-300 and 1,000 photos of 16 augmentations, 800 steps each (the demo's own schedule; 300 photos is the
-demo), honest protocol, image-wise fold 0 by default. About 11 to 15 minutes an arm on 2 cores.
+cpu_demo: both series again with the demo recipe (configs/kosmos_e.py:demo: photo-centre training
+crops, value tokens, the pointing connector), whose answers do depend on the photo: 100, 300 and
+1,000 photos of 16 augmentations, and 4, 8 and 16 augmentations of 300 photos, 800 steps each (the
+demo's own schedule; 300 photos of 16 is the demo), honest protocol, image- and object-wise fold 0
+by default. About 11 to 15 minutes an arm on 2 cores.
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.
@@ -44,9 +45,14 @@ def get_config(arg: str | None = None):
         return experiment("data_size", arms, schemes="image,object", protocols="honest", folds="0,1,2",
                           data_size_plot=True)
     if variant == "cpu_demo":
-        arms = {f"photos{p}_aug16": arm("configs/kosmos_e.py:demo", {"data.synthetic_photos": p, "data.build.kinds": "non"},
-                                        series="photos") for p in (100, 300, 1000)}
-        return experiment("data_size", arms, schemes="image", protocols="honest", folds="0", data_size_plot=True)
+        def demo_arm(photos: int, augmentations: int, series: str):
+            return arm("configs/kosmos_e.py:demo", {"data.synthetic_photos": photos, "data.build.kinds": "non",
+                                                    "data.build.augmentations": augmentations}, series=series)
+
+        arms = {f"photos{p}_aug16": demo_arm(p, 16, "photos") for p in (100, 1000)}
+        arms["photos300_aug16"] = demo_arm(300, 16, "augmentations,photos")
+        arms.update({f"photos300_aug{a}": demo_arm(300, a, "augmentations") for a in (4, 8)})
+        return experiment("data_size", arms, schemes="image,object", protocols="honest", folds="0", data_size_plot=True)
     arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
             for a in (4, 8, 16, 32)}
     arms.update({f"synthetic{p}": arm("configs/kosmos_e.py:paper", {
