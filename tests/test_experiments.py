@@ -13,7 +13,7 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from kosmos_jax.experiments import aggregate, checks, data_size, records, runner, spec
+from kosmos_jax.experiments import aggregate, carried, checks, data_size, records, runner, spec
 from kosmos_jax.experiments.spec import ExperimentError, arm, experiment
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -425,6 +425,43 @@ def test_table1_cpu_reads_cornell_and_its_baselines():
     assert all(spec.arm_config(config, a).data.source == "cornell" for a in config.arms)
     assert spec.arm_config(config, "kosmos_e").data.build.kinds == "non"
 
+def test_records_carried_out_and_back_are_skipped_and_aggregated(tmp_path):
+    """A sweep's records sent to a kept folder come back into a new workdir: nothing trains again,
+    and the new workdir aggregates them as the old one did."""
+    config, trainer = baseline_experiment(folds="0"), FakeTrainer()
+    sweep(config, tmp_path / "old", trainer)
+    assert carried.send_out(config, tmp_path / "old", tmp_path / "kept") == [
+        f"{a} honest-{s} fold 0" for a in ("b1", "b2") for s in ("image", "object")]
+    assert sorted(p.name for p in (tmp_path / "kept" / "b1" / "honest-image-fold0").iterdir()) == [records.FOLD_FILE]
+    assert len(carried.bring_in(config, tmp_path / "kept", tmp_path / "new")) == 4
+    again = sweep(config, tmp_path / "new", trainer)
+    assert len(trainer.calls) == 4 and again["skipped"] == 4
+    assert again["results"]["rows"] == json.loads((tmp_path / "old" / "results.json").read_text())["rows"]
+    assert carried.bring_in(config, tmp_path / "kept", tmp_path / "new") == []  # identical records: nothing to do
+    more = baseline_experiment(folds="0,1")
+    sweep(more, tmp_path / "new", trainer)
+    assert len(trainer.calls) == 8  # only fold 1 trained
+    assert len(carried.send_out(more, tmp_path / "new", tmp_path / "kept")) == 4
+
+
+def test_carried_records_refuse_another_arm_or_a_clash(tmp_path):
+    config = baseline_experiment(folds="0")
+    sweep(config, tmp_path / "old", FakeTrainer())
+    carried.send_out(config, tmp_path / "old", tmp_path / "kept")
+    changed = baseline_experiment(folds="0")
+    changed.arms.b2.overrides.train.steps = 5
+    with pytest.raises(ExperimentError, match="made by arm 'b2'.*filed under the wrong arm"):
+        carried.bring_in(changed, tmp_path / "kept", tmp_path / "new")
+    assert not (tmp_path / "new").exists()  # b1's records were not copied either
+    clash = tmp_path / "kept" / "b1" / "honest-image-fold0" / records.FOLD_FILE
+    clash.write_text(json.dumps({**json.loads(clash.read_text()), "accuracy": 99.0}))
+    with pytest.raises(ExperimentError, match="already holds another record of b1 honest-image fold 0"):
+        carried.send_out(config, tmp_path / "old", tmp_path / "kept")
+    assert json.loads(clash.read_text())["accuracy"] == 99.0  # nothing replaced
+    with pytest.raises(ExperimentError, match="--records_from folder .* does not exist"):
+        carried.bring_in(config, tmp_path / "absent", tmp_path / "new")
+
+
 # -- the command and the launcher ------------------------------------------------------------------
 
 
@@ -441,6 +478,34 @@ def test_command_check_only_and_errors(tmp_path):
     bad = command("--config=configs/experiments/table3.py:cpu", f"--workdir={tmp_path}", "--config.run_arms=xyz")
     assert bad.returncode == 1 and "error: unknown arm 'xyz'; expected some of xya, xywha, tlbra, tlbra_patch" in bad.stderr
     assert not list(tmp_path.iterdir())
+
+
+BASELINE_EXPERIMENT_FILE = """
+from kosmos_jax.experiments.spec import arm, experiment
+
+
+def get_config(arg=None):
+    fits = {"train.batch_size": 8}
+    arms = {"b1": arm("configs/baselines.py:tiny", fits), "b2": arm("configs/baselines.py:tiny", {"train.steps": 4, **fits})}
+    return experiment("unit", arms, schemes="image,object", protocols="honest", k=3, folds="0")
+"""
+
+
+def test_command_carries_records_in_and_out(tmp_path):
+    config_file = tmp_path / "unit.py"
+    config_file.write_text(BASELINE_EXPERIMENT_FILE)
+    sweep(baseline_experiment(folds="0"), tmp_path / "old", FakeTrainer())
+    carried.send_out(baseline_experiment(folds="0"), tmp_path / "old", tmp_path / "kept")
+    done = command(f"--config={config_file}", f"--workdir={tmp_path / 'new'}", "--aggregate_only",
+                   f"--records_from={tmp_path / 'kept'}", f"--records_to={tmp_path / 'kept2'}")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"4 fold records copied from {tmp_path / 'kept'} into {tmp_path / 'new'}" in done.stdout
+    assert "aggregated 4 folds" in done.stdout and "(0 not run yet)" in done.stdout
+    assert f"4 fold records copied from {tmp_path / 'new'} into {tmp_path / 'kept2'}" in done.stdout
+    assert len(list((tmp_path / "kept2").rglob(records.FOLD_FILE))) == 4
+    missing = command(f"--config={config_file}", f"--workdir={tmp_path / 'new'}", "--aggregate_only",
+                      f"--records_from={tmp_path / 'nowhere'}")
+    assert missing.returncode == 1 and "--records_from folder" in missing.stderr
 
 
 def test_slurm_array_aggregate_step():

@@ -1,13 +1,16 @@
 """`python -m kosmos_jax.experiments --config=configs/experiments/table1.py:cpu --workdir=runs/table1`
 
     [--config.folds=0,1] [--config.run_arms=kosmos_e] [--config.init_from=KOSMOS2_FOLDER]
-    [--aggregate_only] [--check_only]
+    [--aggregate_only] [--check_only] [--records_from=DIR] [--records_to=DIR]
 
 Trains and scores every (arm, protocol, scheme, fold) of the experiment not yet recorded under
 WORKDIR (a killed sweep resumes: finished folds are skipped, a half-trained run resumes from its
 checkpoint), then writes WORKDIR/results.json and table.md (and data_size.png/json for Fig. 6).
 --aggregate_only only writes those from the folds recorded so far (after a SLURM array's tasks);
---check_only builds every arm's config and model shapes and trains nothing. Exit status: 0 done,
+--check_only builds every arm's config and model shapes and trains nothing. --records_from=DIR first
+copies the fold records kept in DIR (results/<experiment>/folds) into WORKDIR, so their folds are
+skipped and aggregated; --records_to=DIR copies WORKDIR's records there at the end (carried.py).
+Exit status: 0 done,
 1 a fold failed or the config is wrong, 3 stopped by SIGTERM (the same command resumes).
 """
 
@@ -27,6 +30,9 @@ def define_flags() -> None:
     flags.DEFINE_string("workdir", None, "the experiment's folder: one run folder per arm and fold, results.json")
     flags.DEFINE_bool("aggregate_only", False, "only aggregate the folds recorded so far")
     flags.DEFINE_bool("check_only", False, "build every arm's config and model shapes; train nothing")
+    flags.DEFINE_string("records_from", None, "a folder of fold records (as --records_to writes) to copy into "
+                        "the workdir first: those folds are skipped and aggregated")
+    flags.DEFINE_string("records_to", None, "a folder to copy the workdir's fold records into at the end")
     flags.mark_flags_as_required(["config", "workdir"])
 
 
@@ -38,6 +44,7 @@ def main(argv) -> int:
     if len(argv) > 1:
         raise app.UsageError(f"unexpected arguments: {argv[1:]}")
     logging.set_verbosity(logging.WARNING)
+    from kosmos_jax.experiments import carried
     from kosmos_jax.experiments.aggregate import write_results
     from kosmos_jax.experiments.checks import check_experiment
     from kosmos_jax.experiments.runner import SweepStopped, run_experiment
@@ -50,18 +57,27 @@ def main(argv) -> int:
             for report in check_experiment(config):
                 print(json.dumps(report))
             return 0
+        if options.records_from:
+            brought = carried.bring_in(config, options.records_from, options.workdir)
+            print(f"{len(brought)} fold records copied from {options.records_from} into {options.workdir}")
         if options.aggregate_only:
             results = write_results(config, options.workdir, command)
             print(f"aggregated {sum(len(r['folds']) for r in results['rows'] if r['kind'] == 'trained')} folds into "
                   f"{options.workdir}/results.json and table.md ({len(results['missing'])} not run yet)")
-            return 0
-        summary = run_experiment(config, options.workdir, command=command)
+            summary = None
+        else:
+            summary = run_experiment(config, options.workdir, command=command)
+        if options.records_to:
+            sent = carried.send_out(config, options.workdir, options.records_to)
+            print(f"{len(sent)} fold records copied from {options.workdir} into {options.records_to}")
     except ExperimentError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
     except SweepStopped as error:
         print(f"stopped: {error}", file=sys.stderr)
         return 3
+    if summary is None:
+        return 0
     print(f"{summary['trained']} folds trained, {summary['skipped']} skipped, {len(summary['failed'])} failed")
     for name, error in summary["failed"]:
         print(f"failed: {name}: {error}", file=sys.stderr)
