@@ -16,6 +16,10 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     config.steps = 0  # 0: the training config's own train.steps
     config.photos = 24 if tiny else 60  # synthetic photos of the no-learning table (object-wise needs >= 5 objects)
     config.seed = 0
+    # the trained model on scenes it never saw (another seed): NON on each, multi-object kinds on mosaics
+    config.fresh_photos = 20 if tiny else 40  # 0: not scored; mosaics need photos of at least 4 objects
+    config.fresh_seed = 1  # must differ from the training scenes' seed (0)
+    config.fresh_kinds = "non,multi"
     config.cornell = ""  # a Cornell-format folder; "" = ../shared/data/cornell when it exists
     config.folds = 5
     return config

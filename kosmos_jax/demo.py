@@ -6,7 +6,10 @@
    project's synthetic scenes) in OUT/run, an ordinary workdir (`python -m kosmos_jax.evaluate
    --workdir=OUT/run` and the notebooks open it); a finished run is reused, a stopped one resumed.
    It decodes the held-out fold's answers and scores them (evaluate's code), and scores the
-   image-centre and ground-truth-mean predictors on exactly the same test instructions.
+   image-centre and ground-truth-mean predictors on exactly the same test instructions. Then the
+   same on config.fresh_photos scenes drawn with another seed (config.fresh_seed), which it never
+   trained on: NON on each photo, and the multi-object kinds on four-photo mosaics of them
+   (config.fresh_kinds; the evaluate command's --cornell scoring, in OUT/run/eval/STEP/cornell-*).
 2. Writes a synthetic Cornell-format set, reads it back with the Cornell reader, and scores the
    two no-learning predictors with 5-fold cross-validation, image-wise and object-wise, under the
    `honest` and `paper` protocols and the `exact` and `reference` IoU backends; the same on the real
@@ -29,12 +32,16 @@ from ml_collections import config_flags
 from kosmos_jax.data import cornell
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import views
+from kosmos_jax.evaluate.__main__ import evaluate, parse_args, write
+from kosmos_jax.evaluate.run import open_run
 from kosmos_jax.evaluation import baselines, scoring
-from kosmos_jax.experiments import runner, spec
+from kosmos_jax.evaluation.cornell_examples import cornell_examples
+from kosmos_jax.experiments import no_learning, runner, spec
 from kosmos_jax.metrics import BACKENDS
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_CORNELL = REPO.parent / "shared" / "data" / "cornell"
+FRESH_SPLIT = "fresh photos"  # the `split` of the rows scored on config.fresh_photos
 CONFIG = config_flags.DEFINE_config_file("config", str(REPO / "configs" / "demo.py"), "an ml-collections config file")
 
 
@@ -87,35 +94,82 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     build = train_config.data.build
     data = f"{train_config.data.source}-{train_config.data.synthetic_photos}" \
         if train_config.data.source == "synthetic" else train_config.data.source
-    rows = []
-    for predictor, figures in [("kosmos_e", results), *no_learning.items()]:
-        scenes = [("all", figures)] + sorted(figures["by_scene"].items())
-        for scene, figure in scenes:
-            rows.append(dict(data=data, protocol=build.protocol, split=f"{build.split}-fold{build.fold}",
-                             backend="exact", scene=scene, predictor=predictor, mean=round(figure["accuracy"], 2),
-                             instructions=figure["instructions"], step=summary["step"], workdir=str(workdir)))
+    rows = scored_rows(dict(data=data, protocol=build.protocol, split=f"{build.split}-fold{build.fold}",
+                            step=summary["step"], workdir=str(workdir)), [("kosmos_e", results), *no_learning.items()])
     print(f"trained and scored {workdir} in {time.perf_counter() - started:.0f} s", file=sys.stderr)
+    if config.fresh_photos:
+        rows += fresh_rows(config, train_config, out, workdir, summary["step"])
     return rows
 
 
+def scored_rows(fields: dict, figures_of: list[tuple[str, dict]]) -> list[dict]:
+    """One row per (predictor, scene), "all" first, each with `fields`."""
+    return [dict(fields, backend="exact", scene=scene, predictor=predictor, mean=round(figure["accuracy"], 2),
+                 instructions=figure["instructions"])
+            for predictor, figures in figures_of
+            for scene, figure in [("all", figures)] + sorted(figures["by_scene"].items())]
+
+
+def fresh_rows(config, train_config, out: pathlib.Path, workdir: pathlib.Path, step: int) -> list[dict]:
+    """The trained run on scenes drawn with another seed, none of which it trained on: every photo's
+    instructions of config.fresh_kinds (NON on the photo, the multi-object kinds on mosaics of
+    them), the evaluate command's `--cornell` scoring, beside the no-learning predictors on the same
+    instructions."""
+    if train_config.data.source == "synthetic" and config.fresh_seed == train_config.data.synthetic_seed:
+        raise ValueError(f"config.fresh_seed={config.fresh_seed} is the training scenes' seed: its photos would not be new")
+    folder = synthetic_source(out, config.fresh_photos, config.fresh_seed)
+    kinds = [kind.strip() for kind in config.fresh_kinds.split(",") if kind.strip()]
+    results = fresh_results(workdir, step, folder, kinds)
+    run = open_run(workdir)
+    records = cornell_examples(folder, run.tokenizer, run.format_config, kinds).records
+    no_learning_figures = no_learning.score(records, "honest", run.format_config.image_size)
+    fields = dict(data=f"synthetic-{config.fresh_photos}-seed{config.fresh_seed}", protocol="honest",
+                  split=FRESH_SPLIT, step=step, workdir=str(workdir))
+    return scored_rows(fields, [("kosmos_e", results), *no_learning_figures.items()])
+
+
+def fresh_results(workdir: pathlib.Path, step: int, folder: pathlib.Path, kinds: list[str]) -> dict:
+    """The evaluate command's results for the Cornell-format `folder` (reused when already written
+    for these kinds)."""
+    args = parse_args(["--workdir", str(workdir), "--step", str(step), "--cornell", str(folder), "--kinds", ",".join(kinds)])
+    written = workdir / "eval" / str(step) / f"cornell-{folder.resolve().name}" / "results.json"
+    if written.is_file():
+        results = json.loads(written.read_text())
+        if results.get("kinds") == kinds and results.get("cornell") == str(folder.resolve()):
+            return results
+    results, answers, where = evaluate(args)
+    write(results, answers, where)
+    return results
+
+
 def print_trained(rows: list[dict]) -> None:
-    """The trained model beside the no-learning predictors on the same held-out instructions."""
-    predictors = sorted({r["predictor"] for r in rows}, key=lambda p: (p != "kosmos_e", p))
-    scenes = sorted({r["scene"] for r in rows}, key=lambda s: (s != "all", s))
-    first = rows[0]
-    print(f"\n{first['data']}, {first['protocol']} protocol, {first['split']} held out, step {first['step']} "
-          f"({first['workdir']}): accuracy in percent (instructions)")
-    print(f"{'predictor':<15}" + "".join(f"{'scene ' + s:>18}" for s in scenes))
-    cell = {(r["predictor"], r["scene"]): f"{r['mean']:6.2f} ({r['instructions']})" for r in rows}
-    for predictor in predictors:
-        print(f"{predictor:<15}" + "".join(f"{cell.get((predictor, s), '-'):>18}" for s in scenes))
-    model = {r["scene"]: r["mean"] for r in rows if r["predictor"] == "kosmos_e"}
-    centre = {r["scene"]: r["mean"] for r in rows if r["predictor"] == "image_centre"}
+    """The trained model beside the no-learning predictors on the same instructions: its held-out
+    fold (and whether the goal is met), then the fresh photos when they were scored."""
+    fold = [r for r in rows if r["split"] != FRESH_SPLIT]
+    print_scenes(fold, "held out")
+    model = {r["scene"]: r["mean"] for r in fold if r["predictor"] == "kosmos_e"}
+    centre = {r["scene"]: r["mean"] for r in fold if r["predictor"] == "image_centre"}
     if "single" in model:
         gain = model["single"] - centre["single"]
         verdict = "met" if gain >= 20 else "NOT met"
         print(f"goal (kosmos_e >= image_centre + 20 points on single-object instructions): {verdict}, "
               f"{gain:+.2f} points")
+    fresh = [r for r in rows if r["split"] == FRESH_SPLIT]
+    if fresh:
+        print_scenes(fresh, "(another seed's scenes, never trained on; scene multi: four-photo mosaics of them)")
+
+
+def print_scenes(rows: list[dict], what: str) -> None:
+    """One table: a row per predictor, a column per scene."""
+    predictors = sorted({r["predictor"] for r in rows}, key=lambda p: (p != "kosmos_e", p))
+    scenes = sorted({r["scene"] for r in rows}, key=lambda s: (s != "all", s))
+    first = rows[0]
+    print(f"\n{first['data']}, {first['protocol']} protocol, {first['split']} {what}, step {first['step']} "
+          f"({first['workdir']}): accuracy in percent (instructions)")
+    print(f"{'predictor':<15}" + "".join(f"{'scene ' + s:>18}" for s in scenes))
+    cell = {(r["predictor"], r["scene"]): f"{r['mean']:6.2f} ({r['instructions']})" for r in rows}
+    for predictor in predictors:
+        print(f"{predictor:<15}" + "".join(f"{cell.get((predictor, s), '-'):>18}" for s in scenes))
 
 
 def print_table(rows: list[dict]) -> None:

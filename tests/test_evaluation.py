@@ -14,6 +14,7 @@ from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.dataset import views
 from kosmos_jax.evaluation import baselines, scoring
+from kosmos_jax.experiments import spec
 
 _spec = importlib.util.spec_from_file_location("demo_settings", pathlib.Path(__file__).parents[1] / "configs" / "demo.py")
 demo_settings = importlib.util.module_from_spec(_spec)
@@ -201,6 +202,26 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     assert "all" in model and model["all"]["step"] == 6
     results = json.loads((tmp_path / "run" / "eval" / "6" / "results.json").read_text())
     assert results["accuracy"] == pytest.approx(model["all"]["mean"], abs=0.01)
-    assert "goal (kosmos_e >= image_centre + 20" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "goal (kosmos_e >= image_centre + 20" in out
+    # the same model on another seed's scenes: NON on each photo, the multi-object kinds on mosaics
+    fresh = [r for r in rows if r["split"] == demo.FRESH_SPLIT]
+    assert {r["scene"] for r in fresh} == {"all", "single", "multi"}
+    assert {r["predictor"] for r in fresh} == {"kosmos_e", "image_centre", "gt_mean_oracle"}
+    for scene in ("single", "multi"):
+        assert len({r["instructions"] for r in fresh if r["scene"] == scene}) == 1
+    assert all(r["data"] == "synthetic-20-seed1" for r in fresh)
+    written = json.loads((tmp_path / "run" / "eval" / "6" / "cornell-synthetic_20_seed1" / "results.json").read_text())
+    assert written["kinds"] == ["non", "multi"] and set(written["by_scene"]) == {"single", "multi"}
+    model = {r["scene"]: r["mean"] for r in fresh if r["predictor"] == "kosmos_e"}
+    assert model["multi"] == pytest.approx(written["by_scene"]["multi"]["accuracy"], abs=0.01)
+    assert "scene multi" in out and "never trained on" in out
     demo.run(demo_config(tmp_path, steps=6))  # a finished run is reused, not trained again
     assert json.loads((tmp_path / "results.json").read_text())[: len(trained)] == trained
+
+
+def test_demo_refuses_fresh_photos_of_the_training_seed(tmp_path):
+    config = demo_config(tmp_path, fresh_seed=0)
+    with pytest.raises(ValueError, match="fresh_seed=0 is the training scenes' seed"):
+        demo.fresh_rows(config, spec.load_config(config.train_config), tmp_path, tmp_path / "run", 1)
+    assert not list(tmp_path.iterdir())  # refused before writing anything
