@@ -18,7 +18,7 @@ from kosmos_jax.experiments.spec import ExperimentError, arm, experiment
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 EXPERIMENTS = ("table1", "table2", "table3", "table4", "table5", "data_size")
-DEMO_EXPERIMENTS = ("table1", "table2", "table3", "data_size")  # those with a cpu_demo variant
+DEMO_EXPERIMENTS = ("table1", "table2", "table3", "table4", "data_size")  # those with a cpu_demo variant
 
 
 # -- fold lists, arms, training configs ------------------------------------------------------------
@@ -371,7 +371,7 @@ def test_cpu_kosmos_arms_build_on_the_demo_config(name):
 
 # what each cpu_demo variant may change in the demo's data build, besides the instruction kinds
 DEMO_BUILD_CHANGES = {"data_size": {"augmentations"}, "table1": set(), "table2": {"augmentations", "max_length"},
-                      "table3": {"representation"}}
+                      "table3": {"representation"}, "table4": {"individual", "angle_code"}}
 
 
 @pytest.mark.parametrize("name", DEMO_EXPERIMENTS)
@@ -406,7 +406,7 @@ def test_the_cpu_demo_data_sweep_counts_photos_and_augmentations():
 def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():
     """Their rows sit beside the cpu variants' (whose baselines they do not train again): same data,
     schemes, first fold and instruction kinds."""
-    for name in ("table1", "table2", "table3"):
+    for name in ("table1", "table2", "table3", "table4"):
         cpu = spec.load_config(f"configs/experiments/{name}.py:cpu")
         demo = spec.load_config(f"configs/experiments/{name}.py:cpu_demo")
         assert demo.schemes == cpu.schemes and spec.parse_folds(demo.folds, demo.k) == [0]

@@ -6,8 +6,11 @@ joint outputs (one answer holds the whole grasp), each with the angle as a 256-b
 cpu: synthetic scenes (the demo's 300 photos and 16 augmentations), instruction kind NON,
 KOSMOS-E from configs/kosmos_e.py:demo_kosmos2 trained from scratch for 300 steps (a 300-step fold of Table I took
 383 to 569 s on 2 shared cores; this config has not been run here); honest protocol, image-wise
-folds 0, 1 and 2 of 5 by default (12 folds). paper: configs/kosmos_e.py:paper (Cornell, every instruction kind,
-KOSMOS-2 initialisation: --config.init_from), both protocols, image-wise, every fold.
+folds 0, 1 and 2 of 5 by default (12 folds). cpu_demo: the same four arms with the demo recipe
+(configs/kosmos_e.py:demo: photo-centre training crops, value tokens, the pointing connector; 800
+steps), honest protocol, image-wise fold 0; its individual_code arm is the demo itself. paper:
+configs/kosmos_e.py:paper (Cornell, every instruction kind, KOSMOS-2 initialisation:
+--config.init_from), both protocols, image-wise, every fold.
 """
 
 from kosmos_jax.experiments.spec import arm, experiment
@@ -15,7 +18,7 @@ from kosmos_jax.experiments.spec import arm, experiment
 OUTPUTS = {"individual": True, "joint": False}
 ANGLES = {"code": True, "radians": False}
 CPU_STEPS = 300
-VARIANTS = ("cpu", "paper")
+VARIANTS = ("cpu", "cpu_demo", "paper")
 
 
 def arms_of(config: str, changes: dict) -> dict:
@@ -31,4 +34,7 @@ def get_config(arg: str | None = None):
     if variant == "cpu":
         arms = arms_of("configs/kosmos_e.py:demo_kosmos2", {"data.build.kinds": "non", "train.steps": CPU_STEPS})
         return experiment("table4", arms, schemes="image", protocols="honest", folds="0,1,2")
+    if variant == "cpu_demo":
+        arms = arms_of("configs/kosmos_e.py:demo", {"data.build.kinds": "non"})
+        return experiment("table4", arms, schemes="image", protocols="honest", folds="0")
     return experiment("table4", arms_of("configs/kosmos_e.py:paper", {}), schemes="image", protocols="honest,paper")
