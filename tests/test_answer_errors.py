@@ -1,4 +1,5 @@
-"""evaluate.answer_errors: centre distances and angle errors of decoded answers against their targets."""
+"""evaluate.answer_errors: centre distances and angle errors of decoded answers against their targets;
+evaluate.part_oracles: the answers scored again with the centre or the angle from the ground truth."""
 
 import math
 
@@ -7,7 +8,10 @@ import pytest
 
 from kosmos_jax import geometry
 from kosmos_jax.evaluate import answer_errors as errors_lib
+from kosmos_jax.evaluate import part_oracles as oracles
 from kosmos_jax.evaluate.run import RunError
+from kosmos_jax.evaluation.instructions import Instruction
+from kosmos_jax.evaluation.tally import successes
 from kosmos_jax.text.formatter import FormatConfig
 
 CONFIG = FormatConfig()  # xya, angle code, individual
@@ -52,3 +56,47 @@ def test_a_run_without_answers_is_told_how_to_make_them(tmp_path):
         errors_lib.read_answers(tmp_path, 800)
     with pytest.raises(SystemExit, match="not a training run's workdir"):
         errors_lib.main(["--workdir", str(tmp_path)])
+
+
+# -- part_oracles: the answers scored again with one half from the ground truth ----------------------
+
+
+def one_instruction(answers, kind="non", parts=("location", "angle")):
+    return Instruction(kind, "single", "", {part: index for index, part in enumerate(parts)},
+                       np.asarray(answers, np.float32))
+
+
+TRUTHS = [[50, 50, 20, 10, 0.0], [150, 150, 20, 10, math.pi / 4]]
+
+
+def test_each_oracle_takes_its_half_from_the_ground_truth_nearest_the_answered_centre():
+    instructions = [one_instruction(TRUTHS)] * 4
+    grasps = np.array([[52, 50, 0.0],  # right: a hit in all three
+                       [52, 50, math.pi / 2],  # right place, wrong angle: only true_angle hits
+                       [148, 80, math.pi / 4],  # nearer the second truth, too far: only true_centre hits
+                       [np.nan, np.nan, np.nan]])  # did not parse: a miss in all three
+    made = oracles.oracle_grasps(instructions, grasps)
+    np.testing.assert_allclose(made["true_angle"][:3, 2], [0.0, 0.0, math.pi / 4])
+    np.testing.assert_allclose(made["true_centre"][2], [150, 150, math.pi / 4])
+    assert np.isnan(made["true_angle"][3]).all() and np.isnan(made["true_centre"][3]).all()
+    hits = {name: successes(instructions, grasps_, "honest").tolist() for name, grasps_ in made.items()}
+    assert hits == {"model": [True, False, False, False], "true_angle": [True, True, False, False],
+                    "true_centre": [True, False, True, False]}
+
+
+def test_an_instruction_that_states_its_angle_keeps_it():
+    instructions = [one_instruction(TRUTHS, kind="angle", parts=("location",))]
+    made = oracles.oracle_grasps(instructions, np.array([[52, 50, math.pi / 2]]))
+    assert made["true_angle"][0, 2] == pytest.approx(math.pi / 2)  # the instructed angle, not the truth's 0
+
+
+def test_part_oracles_need_every_answer():
+    records = [{"photo_ids": ["p"], "kind": "non", "scene": "non", "instruction": "", "target": 0, "part": part,
+                "answers": TRUTHS} for part in ("location", "angle")]
+    rows = [{"example": 0, "part": "location", "answer": "Grasp center point coordinates: x_52,y_50"},
+            {"example": 1, "part": "angle", "answer": "Grasp rotation angle in radians: a_0"}]
+    figures = oracles.part_oracles(records, rows, CONFIG, "honest")
+    assert figures["instructions"] == 1 and figures["accuracy"]["model"] == 0.0  # a_0: a quarter turn off
+    assert figures["accuracy"]["true_angle"] == 100.0 and figures["by_kind"]["non"]["true_centre"] == 0.0
+    with pytest.raises(RunError, match="no answer for 1 test examples"):
+        oracles.part_oracles(records, rows[:1], CONFIG, "honest")

@@ -98,6 +98,17 @@ def redrawn(shapes, seed):
     return jax.tree.map(lambda x: rng.standard_normal(x.shape).astype(x.dtype), shapes)
 
 
+def test_part_oracles_score_the_answers_as_the_evaluation_does_and_only_raise_them(evaluated, workdir):
+    stdout, folder = evaluated
+    done = run_module("kosmos_jax.evaluate.part_oracles", f"--workdir={workdir}", "--json")
+    assert done.returncode == 0, done.stderr[-3000:]
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    results = json.loads(stdout.strip().splitlines()[-1])
+    assert figures["accuracy"]["model"] == pytest.approx(results["accuracy"])
+    assert figures["instructions"] == results["instructions"] and figures["step"] == 2
+    assert set(figures["by_kind"]) == set(results["by_kind"])
+
+
 def test_an_answer_the_grammar_forbids_is_impossible_even_for_a_random_model(workdir):
     run = open_run(workdir)
     one_device = make_mesh(1, 1, 1, devices=jax.devices()[:1])

@@ -1,0 +1,102 @@
+"""What each half of a run's answers costs it: its grasps scored again with one half from the truth.
+
+    python -m kosmos_jax.evaluate.part_oracles --workdir=runs/demo [--step=N] [--json]
+
+Reads WORKDIR/eval/STEP/answers.jsonl (run `python -m kosmos_jax.evaluate --workdir=...` first) and
+the test split's instructions, and scores three grasps an instruction with the run's protocol:
+  model        the answered centre and angle: the evaluate command's accuracy;
+  true_angle   the answered centre with the angle of the ground truth nearest to it: what the model
+               would score if its angles were right;
+  true_centre  the answered angle at the centre of that same ground truth: what it would score if
+               its centres were right.
+An instruction that states its angle keeps that angle in all three. An answer that does not parse
+is a miss in all three: no ground truth ever stands in for a missing answer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from kosmos_jax.evaluate.answer_errors import read_answers
+from kosmos_jax.evaluate.run import RunError, chosen_step, open_run
+from kosmos_jax.evaluation import tally
+from kosmos_jax.evaluation.instructions import Instruction, combine, group_instructions
+from kosmos_jax.text.formatter import FormatConfig, parse_target
+
+SCORES = ("model", "true_angle", "true_centre")
+
+
+def nearest_truths(instructions: Sequence[Instruction], grasps: np.ndarray) -> np.ndarray:
+    """[G, 5] the ground truth of each instruction whose centre is nearest the answered centre
+    (NaN where the answer did not parse)."""
+    truths = np.full((len(instructions), 5), np.nan)
+    for row, (instruction, grasp) in enumerate(zip(instructions, grasps)):
+        if np.isfinite(grasp).all():
+            distances = np.hypot(*(instruction.answers[:, :2] - grasp[:2]).T)
+            truths[row] = instruction.answers[np.argmin(distances)]
+    return truths
+
+
+def oracle_grasps(instructions: Sequence[Instruction], grasps: np.ndarray) -> dict[str, np.ndarray]:
+    """{score name: [G, 3] (x, y, theta)}: the model's grasps and the two with half from the truth."""
+    truths = nearest_truths(instructions, grasps)
+    answers_angle = np.array([instruction.answer != "centre" for instruction in instructions])
+    true_angle, true_centre = grasps.copy(), grasps.copy()
+    true_angle[answers_angle, 2] = truths[answers_angle, 4]
+    true_centre[:, :2] = truths[:, :2]
+    return {"model": grasps, "true_angle": true_angle, "true_centre": true_centre}
+
+
+def answered_grasps(instructions: Sequence[Instruction], rows: Sequence[Mapping], config: FormatConfig) -> np.ndarray:
+    """[G, 3] each instruction's grasp from its examples' answers, as the evaluation combines them."""
+    parsed = {row["example"]: parse_target(row["answer"], row["part"], config) for row in rows}
+    missing = sorted({i for instruction in instructions for i in instruction.examples.values()} - set(parsed))
+    if missing:
+        raise RunError(f"answers.jsonl has no answer for {len(missing)} test examples (first {missing[0]}): it was "
+                       "decoded with --max-examples; evaluate the whole split first")
+    return np.stack([combine(instruction, {part: parsed[index] for part, index in instruction.examples.items()})
+                     for instruction in instructions])
+
+
+def part_oracles(records: Sequence[Mapping], rows: Sequence[Mapping], config: FormatConfig, protocol: str) -> dict:
+    """{"instructions": n, "accuracy": {score: percent}, "by_kind": {kind: {score: percent}}}."""
+    instructions = group_instructions(records)
+    grasps = answered_grasps(instructions, rows, config)
+    hits = {name: tally.successes(instructions, made, protocol) for name, made in oracle_grasps(instructions, grasps).items()}
+    kinds = tally.group_members(instructions, lambda instruction: instruction.kind)
+    return {"instructions": len(instructions), "accuracy": {name: tally.percent(hits[name]) for name in SCORES},
+            "by_kind": {kind: {name: tally.percent(hits[name][idx]) for name in SCORES} for kind, idx in kinds.items()}}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate.part_oracles", description=__doc__.splitlines()[0])
+    parser.add_argument("--workdir", required=True, help="the training run's folder")
+    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
+    args = parser.parse_args(argv)
+    workdir = pathlib.Path(args.workdir)
+    try:
+        run = open_run(workdir)
+        step = chosen_step(workdir, args.step)
+        figures = {"step": step, "protocol": run.protocol,
+                   **part_oracles(run.split("test").examples, read_answers(workdir, step), run.format_config, run.protocol)}
+    except RunError as error:
+        raise SystemExit(f"error: {error}") from None
+    if args.json:
+        print(json.dumps(figures))
+        return
+    print(f"step {step}, {figures['instructions']} test instructions, {run.protocol} protocol: accuracy in percent")
+    print(f"{'kind':<16}" + "".join(f"{name:>13}" for name in SCORES))
+    for kind, scores in [("all", figures["accuracy"]), *sorted(figures["by_kind"].items())]:
+        print(f"{kind:<16}" + "".join(f"{scores[name]:>13.2f}" for name in SCORES))
+    print("true_angle: the answered centre with the nearest ground truth's angle; "
+          "true_centre: the answered angle at that ground truth's centre")
+
+
+if __name__ == "__main__":
+    main()
