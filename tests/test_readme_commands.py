@@ -1,7 +1,7 @@
 """README.md's commands, run or checked, so that the README cannot drift from the code.
 
 Every command in README.md's code blocks is either run or checked:
-- run, in a sandbox folder that links configs/ and launch/ (so paths resolve as in the repository),
+- run, in a sandbox folder that links configs/, launch/ and results/ (so paths resolve as in the repository),
   with this interpreter's bin folder first on PATH (`python`, `kosmos-grasp`): the tiny training
   command, its steps cut to 2, writes runs/tiny once for the module; the commands that use
   runs/tiny (evaluate, predict, the Python blocks, on a synthetic photo), --check_only and
@@ -288,7 +288,7 @@ def sandbox(tmp_path_factory) -> pathlib.Path:
     """A folder where README commands run as in the repository, holding runs/tiny (the README's tiny
     training command, 2 steps) and photo.png (a synthetic scene's photo)."""
     root = tmp_path_factory.mktemp("readme")
-    for name in ("configs", "launch"):
+    for name in ("configs", "launch", "results"):  # results/: the committed fold records a sweep can carry in
         (root / name).symlink_to(REPO / name)
     training = next((c for c in CHEAP if is_tiny_training(split_env(c)[1])), None)
     assert training, "README has no tiny training command"
