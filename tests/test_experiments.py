@@ -371,7 +371,7 @@ def test_cpu_kosmos_arms_build_on_the_demo_config(name):
 
 # what each cpu_demo variant may change in the demo's data build, besides the instruction kinds
 DEMO_BUILD_CHANGES = {"data_size": {"augmentations"}, "table1": set(), "table2": {"augmentations", "max_length"},
-                      "table3": {"representation"}, "table4": {"individual", "angle_code"}}
+                      "table3": {"representation"}, "table4": {"individual", "angle_code", "max_length"}}
 
 
 @pytest.mark.parametrize("name", DEMO_EXPERIMENTS)

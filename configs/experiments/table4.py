@@ -8,7 +8,8 @@ KOSMOS-E from configs/kosmos_e.py:demo_kosmos2 trained from scratch for 300 step
 383 to 569 s on 2 shared cores; this config has not been run here); honest protocol, image-wise
 folds 0, 1 and 2 of 5 by default (12 folds). cpu_demo: the same four arms with the demo recipe
 (configs/kosmos_e.py:demo: photo-centre training crops, value tokens, the pointing connector; 800
-steps), honest protocol, image-wise fold 0; its individual_code arm is the demo itself. paper:
+steps), honest protocol, image-wise fold 0; its individual_code arm is the demo itself, and
+joint_radians alone takes sequences of 96 tokens (its answers need 89, the demo's length is 88). paper:
 configs/kosmos_e.py:paper (Cornell, every instruction kind, KOSMOS-2 initialisation:
 --config.init_from), both protocols, image-wise, every fold.
 """
@@ -18,6 +19,7 @@ from kosmos_jax.experiments.spec import arm, experiment
 OUTPUTS = {"individual": True, "joint": False}
 ANGLES = {"code": True, "radians": False}
 CPU_STEPS = 300
+DEMO_JOINT_RADIANS_LENGTH = 96
 VARIANTS = ("cpu", "cpu_demo", "paper")
 
 
@@ -36,5 +38,9 @@ def get_config(arg: str | None = None):
         return experiment("table4", arms, schemes="image", protocols="honest", folds="0,1,2")
     if variant == "cpu_demo":
         arms = arms_of("configs/kosmos_e.py:demo", {"data.build.kinds": "non"})
+        # a joint answer in radians ("x_98,y_178 ... a_-0.41") is one token over the demo's 88
+        arms["joint_radians"] = arm("configs/kosmos_e.py:demo", {
+            "data.build.individual": False, "data.build.angle_code": False, "data.build.kinds": "non",
+            "data.build.max_length": DEMO_JOINT_RADIANS_LENGTH})
         return experiment("table4", arms, schemes="image", protocols="honest", folds="0")
     return experiment("table4", arms_of("configs/kosmos_e.py:paper", {}), schemes="image", protocols="honest,paper")
