@@ -64,12 +64,17 @@ def read_answers(workdir: pathlib.Path, step: int) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line]
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate.answer_errors", description=__doc__.splitlines()[0])
+def scored_run_arguments(module: str, doc: str, argv=None) -> argparse.Namespace:
+    """--workdir, --step and --json of a command that reads a scored run's answers."""
+    parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.splitlines()[0])
     parser.add_argument("--workdir", required=True, help="the training run's folder")
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--json", action="store_true", help="print the summary as one JSON line")
-    args = parser.parse_args(argv)
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> None:
+    args = scored_run_arguments("kosmos_jax.evaluate.answer_errors", __doc__, argv)
     workdir = pathlib.Path(args.workdir)
     try:
         config = FormatConfig(**read_description(workdir)["data_identity"]["format"])

@@ -15,14 +15,13 @@ is a miss in all three: no ground truth ever stands in for a missing answer.
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from kosmos_jax.evaluate.answer_errors import read_answers
+from kosmos_jax.evaluate.answer_errors import read_answers, scored_run_arguments
 from kosmos_jax.evaluate.run import RunError, chosen_step, open_run
 from kosmos_jax.evaluation import tally
 from kosmos_jax.evaluation.instructions import Instruction, combine, group_instructions
@@ -74,11 +73,7 @@ def part_oracles(records: Sequence[Mapping], rows: Sequence[Mapping], config: Fo
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate.part_oracles", description=__doc__.splitlines()[0])
-    parser.add_argument("--workdir", required=True, help="the training run's folder")
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
-    args = parser.parse_args(argv)
+    args = scored_run_arguments("kosmos_jax.evaluate.part_oracles", __doc__, argv)
     workdir = pathlib.Path(args.workdir)
     try:
         run = open_run(workdir)
