@@ -26,7 +26,7 @@ import pathlib
 import sys
 import time
 
-from absl import app
+from absl import app, logging
 from ml_collections import config_flags
 
 from kosmos_jax.data import cornell
@@ -225,6 +225,7 @@ def run(config) -> list[dict]:
 def main(argv) -> None:
     if len(argv) > 1:
         raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+    logging.set_verbosity(logging.WARNING)  # orbax and tfds log every file they touch at INFO
     run(CONFIG.value)
 
 
