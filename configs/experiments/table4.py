@@ -39,8 +39,6 @@ def get_config(arg: str | None = None):
     if variant == "cpu_demo":
         arms = arms_of("configs/kosmos_e.py:demo", {"data.build.kinds": "non"})
         # a joint answer in radians ("x_98,y_178 ... a_-0.41") is one token over the demo's 88
-        arms["joint_radians"] = arm("configs/kosmos_e.py:demo", {
-            "data.build.individual": False, "data.build.angle_code": False, "data.build.kinds": "non",
-            "data.build.max_length": DEMO_JOINT_RADIANS_LENGTH})
+        arms["joint_radians"].overrides.data.build.max_length = DEMO_JOINT_RADIANS_LENGTH
         return experiment("table4", arms, schemes="image", protocols="honest", folds="0")
     return experiment("table4", arms_of("configs/kosmos_e.py:paper", {}), schemes="image", protocols="honest,paper")
