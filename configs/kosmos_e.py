@@ -44,6 +44,7 @@ def data_config(**changes) -> ml_collections.ConfigDict:
         test_crop=placeholder(str), representation="xya", angle_code=True, individual=True, loss_on="target",
         target_grasp="random", numbers="digits", max_length=128, overflow="error", tokenizer=placeholder(str),
         text_pieces=1000, unambiguous=True, batch_size=8,
+        validation_fraction=0.0,  # > 0: that share of the training photos held out as split "validation" (honest)
     ))
     data.update(changes.pop("top", {}))
     data.build.update(changes)

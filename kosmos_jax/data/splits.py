@@ -17,6 +17,12 @@ Everything is a pure function of the ids and the seed; the input order of `photo
 matter (ids are sorted first).
 
     train, test = split(photo_ids, fold=0, scheme="object", object_ids=ids, seed=0)
+
+A validation split (honest protocol only) is held out of a fold's TRAINING photos, never its test
+photos, by `validation_split`: image-wise by photo, object-wise by object, drawn with the fold seed
+alone (its own stream of it), so builds that differ only in their augmentation seed share it.
+
+    train, validation = validation_split(train, 0.1, "object", object_ids=ids_of_train, seed=0)
 """
 
 from __future__ import annotations
@@ -30,9 +36,17 @@ PAPER_SEED = 123
 PAPER_COPIES_PER_PHOTO = 9
 
 
+VALIDATION_STREAM = 0x76616C  # "val": the validation draw's stream of the fold seed
+
+
 class Split(NamedTuple):
     train: list
     test: list
+
+
+class ValidationSplit(NamedTuple):
+    train: list
+    validation: list
 
 
 def _sorted_unique(photo_ids: Sequence[str]) -> list[str]:
@@ -165,3 +179,69 @@ def split(photo_ids: Sequence[str], fold: int, scheme: str = "image", protocol: 
             folds = paper_object_wise_folds(len(samples), k)
         return folds_to_split(samples, folds, fold, k)
     raise ValueError(f"protocol {protocol!r} must be 'honest' or 'paper'")
+
+
+def check_validation_fraction(fraction) -> float:
+    """`fraction` as a float if it is a share of the training photos a validation split may take:
+    a finite number in [0, 1); else a ValueError that says so."""
+    try:
+        value = float(fraction)
+    except (TypeError, ValueError):
+        raise ValueError(f"validation_fraction={fraction!r}: expected a number in [0, 1)") from None
+    if not math.isfinite(value) or not 0.0 <= value < 1.0:
+        raise ValueError(f"validation_fraction={fraction!r}: expected a number in [0, 1) (a share of the "
+                         "training photos; 0: no validation split)")
+    return value
+
+
+def validation_target(fraction: float, photos: int) -> int:
+    """Validation photos asked of `photos` training photos: fraction * photos rounded half up,
+    at least 1 when the fraction is above 0 (0 when it is 0)."""
+    fraction = check_validation_fraction(fraction)
+    if fraction == 0.0:
+        return 0
+    return max(1, math.floor(fraction * photos + 0.5))
+
+
+def validation_split(train_ids: Sequence[str], fraction: float, scheme: str = "image",
+                     object_ids: Sequence[Hashable | None] | None = None, seed: int = 0) -> ValidationSplit:
+    """Hold out a validation split from a fold's training photo ids (honest protocol): lists of
+    photo ids, sorted; fraction 0 leaves `train_ids` whole.
+
+    The target is `validation_target(fraction, len(train_ids))` photos. image-wise: that many
+    photos, drawn by a seeded permutation of the sorted ids. object-wise (`object_ids` aligned
+    with `train_ids`): whole objects, in a seeded order of the sorted objects, until their photos
+    reach the target (so it may hold up to one object's photos more than the target). The draw
+    uses `seed` (the fold seed) in a stream of its own. An error when no training photo (object-
+    wise: no training object) would be left.
+    """
+    if scheme not in ("image", "object"):
+        raise ValueError(f"scheme {scheme!r} must be 'image' or 'object'")
+    ids = _sorted_unique(train_ids)
+    target = validation_target(fraction, len(ids))
+    if target == 0:
+        return ValidationSplit(list(ids), [])
+    rng = np.random.default_rng([int(seed), VALIDATION_STREAM])
+    if scheme == "image":
+        if target >= len(ids):
+            raise ValueError(f"validation_fraction={fraction} of {len(ids)} training photos asks for {target} "
+                             "validation photos and leaves no training photo; lower it")
+        held = {ids[i] for i in rng.permutation(len(ids))[:target]}
+    else:
+        if object_ids is None or len(object_ids) != len(train_ids):
+            raise ValueError("an object-wise validation split needs one object id per training photo id")
+        if any(obj is None for obj in object_ids):
+            raise ValueError("an object-wise validation split needs an object id for every training photo")
+        members: dict[Hashable, list[str]] = {}
+        for photo, obj in zip(train_ids, object_ids):
+            members.setdefault(obj, []).append(photo)
+        objects = sorted(members, key=repr)
+        held = set()
+        for index in rng.permutation(len(objects)):
+            if len(held) >= target:
+                break
+            held.update(members[objects[index]])
+        if len(held) >= len(ids):
+            raise ValueError(f"validation_fraction={fraction} of {len(ids)} training photos ({len(objects)} objects) "
+                             f"asks for {target} validation photos, which takes every training object; lower it")
+    return ValidationSplit([i for i in ids if i not in held], [i for i in ids if i in held])

@@ -1,17 +1,22 @@
 """Build an INSTRUCT-GRASP dataset from a Cornell-format folder and print its statistics as JSON.
 
     python -m kosmos_jax.dataset.build --source DIR --out DIR --protocol honest --split image --fold 0 \
-        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0] [--overwrite]
+        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0] \
+        [--validation-fraction 0.1] [--overwrite]
 
 Steps: read the photos (kosmos_jax.data.cornell) -> words of each object (--annotations: the
 KOSMOS-E file or a synthetic_meta.json; else the folder's synthetic_meta.json; else colour from
 pixels, where a photo whose pixels name no colour loses only its colour kinds, listed in the
 statistics) -> folds over photos or objects BEFORE augmentation (kosmos_jax.data.splits, drawn
 with --fold-seed only, so builds that differ in --seed, the augmentation and instruction seed,
-share their test folds) -> views
+share their test folds) -> with --validation-fraction F > 0 (honest protocol only), a validation
+split held out of the fold's TRAINING photos (image-wise by photo, object-wise by whole objects;
+never a test photo): F times the training photos, rounded half up, at least 1, object-wise whole
+objects until their photos reach that (`splits.validation_split`), drawn with --fold-seed alone;
+F = 0 (the default) makes no validation split and leaves the dataset's identity as before -> views
 (kosmos_jax.dataset.views: honest: --augmentations augmented views per training photo and one
-un-rotated crop per test photo; paper: --augmentations augmented copies of every photo, folded as
-the public code folds them) -> samples of every kind, mosaics drawn within a split
+un-rotated crop per test or validation photo, the same code path and crop for both; paper:
+--augmentations augmented copies of every photo, folded as the public code folds them) -> samples of every kind, mosaics drawn within a split
 (kosmos_jax.dataset.samples) -> text examples (kosmos_jax.text.formatter) -> tokenizer (trained on
 the training split's text, or --tokenizer FILE, a KOSMOS-2 SentencePiece model) -> array_record
 files under OUT (kosmos_jax.dataset.tfds_builders; each distinct image once per split, examples
@@ -27,7 +32,8 @@ leaves a folder that a rerun would take as built.
 Checked on every example, else the build fails naming the sample: the target grasp's centre lies
 inside the image; the angle code is in [0, 255]; the target text parses back to the grasp (within
 half a pixel and one angle bin; TLBRA-patch only within its image); and, in the honest
-protocol, no test photo (object-wise: no test object) is in any training sample, mosaics included.
+protocol, no test photo (object-wise: no test object) is in any training sample, mosaics included,
+and likewise none of validation's in training or test samples, nor test's in validation samples.
 Re-read once written: each split holds as many examples as were made, and the image joined back to
 a spread of examples (about `SPOT_CHECKS` a split, the last one included) is the image it was made
 from. The statistics list, per split, the photo ids and object ids its samples were made from, the
@@ -63,6 +69,9 @@ STATS_FILE = "build_stats.json"
 NOT_DATA = ("out", "overwrite")
 # BuildConfig fields naming files read: in the identity by absolute path and content digest
 INPUT_FILES = ("source", "annotations", "tokenizer")
+# BuildConfig fields added after datasets were built and recorded: left out of the identity at the value
+# that makes the data of before (so those datasets, their folder names and the runs on them stay valid)
+LEFT_OUT_AT = {"validation_fraction": 0.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,6 +102,7 @@ class BuildConfig:
     text_pieces: int = 1000
     unambiguous: bool = True
     batch_size: int = 8
+    validation_fraction: float = 0.0  # share of the training photos held out as split "validation" (honest only)
     overwrite: bool = False  # rebuild a dataset whose folder exists (else it is reused)
 
     def folds_seed(self) -> int:
@@ -104,6 +114,20 @@ class BuildConfig:
     def format_config(self) -> FormatConfig:
         return FormatConfig(self.representation, self.angle_code, self.individual, self.loss_on,
                             self.target_grasp, 224, self.max_length, self.overflow)
+
+    def split_names(self) -> tuple[str, ...]:
+        """The splits the build writes, in their order: train, test, and validation when asked for."""
+        return ("train", "test") + (("validation",) if self.validation_fraction else ())
+
+
+def check_validation(config: BuildConfig) -> None:
+    """A ValueError unless `config.validation_fraction` is a number in [0, 1) that the protocol
+    supports (a validation split needs the honest protocol)."""
+    fraction = splits.check_validation_fraction(config.validation_fraction)
+    if fraction and config.protocol != "honest":
+        raise ValueError(f"validation_fraction={config.validation_fraction}: a validation split needs the honest "
+                         "protocol; the paper protocol folds augmented copies of each photo, so its held-out copies "
+                         "would share photos with training")
 
 # -- splits and views ---------------------------------------------------------------------------
 
@@ -118,7 +142,14 @@ def photo_split(config: BuildConfig, photos) -> dict[str, list]:
                                object_ids=object_ids if config.split == "object" else None, k=config.folds,
                                seed=config.folds_seed(),
                                copies_per_photo=config.augmentations)
-    return {"train": list(train), "test": list(test)}
+    if not config.validation_fraction:
+        return {"train": list(train), "test": list(test)}
+    check_validation(config)
+    object_of = dict(zip(ids, object_ids))
+    train, validation = splits.validation_split(
+        train, config.validation_fraction, config.split, seed=config.folds_seed(),
+        object_ids=[object_of[i] for i in train] if config.split == "object" else None)
+    return {"train": list(train), "test": list(test), "validation": list(validation)}
 
 
 def split_views(config: BuildConfig, photos, words) -> tuple[dict, dict]:
@@ -131,7 +162,10 @@ def split_views(config: BuildConfig, photos, words) -> tuple[dict, dict]:
     if config.protocol == "honest":
         train_crop = config.train_crop or "gt_centroid"
         test_crop = config.test_crop or "image_centre"
-        for split, crop_only, policy in (("train", False, train_crop), ("test", True, test_crop)):
+        for split in config.split_names():
+            # validation views are made as test views are: one un-rotated crop a photo, the test crop, the
+            # test seed (a photo's keys fold in its index among all photos, so the two splits' keys differ)
+            crop_only, policy = (False, train_crop) if split == "train" else (True, test_crop)
             members = [by_id[i] for i in chosen[split]]
             made, dropped = make_views(members, words, augment_config(config.augmentations, config.recipe, policy),
                                        config.seed + (0 if split == "train" else 1), index, crop_only, config.batch_size)
@@ -153,9 +187,11 @@ def split_views(config: BuildConfig, photos, words) -> tuple[dict, dict]:
 
 def build_settings(config: BuildConfig) -> dict:
     """The identity but for the inputs' contents, as JSON data: every BuildConfig field but
-    `NOT_DATA` (a field added later is in by default), the fold seed resolved, the input files by
-    absolute path ({"path": ...}), and the text format as resolved."""
-    settings = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name not in NOT_DATA}
+    `NOT_DATA` (a field added later is in by default) and those of `LEFT_OUT_AT` at their value
+    there, the fold seed resolved, the input files by absolute path ({"path": ...}), and the text
+    format as resolved."""
+    settings = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+                if f.name not in NOT_DATA and not (f.name in LEFT_OUT_AT and getattr(config, f.name) == LEFT_OUT_AT[f.name])}
     settings["fold_seed"] = config.folds_seed()
     for name in INPUT_FILES:
         path = getattr(config, name)
@@ -237,6 +273,8 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
     if not source.is_dir():
         raise FileNotFoundError(f"source folder {source} does not exist")
+    check_validation(config)
+    names = config.split_names()
     format_config = config.format_config()
     words_from = word_source(source, config.annotations)
     kinds = config.kinds if config.kinds is not None else (("all",) if words_from.name != "rules" else RULE_KINDS)
@@ -263,7 +301,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     stats: dict = {"splits": {}}
     ids = {}
     corpus: list[str] = []
-    for split in ("train", "test"):
+    for split in names:
         mosaics = sample_stage.MosaicCounts()
         samples_by_kind: dict[str, int] = {}
         examples_by_kind: dict[str, int] = {}
@@ -301,6 +339,9 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             "photo_ids": sorted(photo_ids),
             "object_ids": sorted(int(o) for o in object_ids),
         }
+    if "validation" in names and not stats["splits"]["validation"]["examples"]:
+        raise ValueError(f"the validation split's {len(views['validation'])} views made no example (its photos' "
+                         "views kept no grasp); raise --validation-fraction")
     stats["separation"] = check_separation(ids, config.protocol, config.split)
     stats["identity"] = identity
     stats["word_source"] = words_from.name
@@ -320,10 +361,10 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     stats["tokenizer"] = {"scheme": tokenizer.scheme, "numbers": tokenizer.numbers, "vocab_size": tokenizer.vocab_size}
 
     # pass 2: the same examples, tokenized (and written)
-    lengths = {"train": [], "test": []}
-    truncated = {"train": 0, "test": 0}
+    lengths = {split: [] for split in names}
+    truncated = {split: 0 for split in names}
     # digests of the images of a spread of examples, to check what the written dataset joins back
-    spots = {split: dict.fromkeys(spot_numbers(stats["splits"][split]["examples"])) for split in ("train", "test")}
+    spots = {split: dict.fromkeys(spot_numbers(stats["splits"][split]["examples"])) for split in names}
 
     def records(split):
         for number, (sample, example) in enumerate(_examples(config, views[split], single, multi, split)):
@@ -335,12 +376,12 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
             yield tfds_builders.example_record(encoded, example)
 
     def token_stats():
-        for split in ("train", "test"):
+        for split in names:
             stats["splits"][split]["token_length"] = _token_stats(lengths[split])
             stats["splits"][split]["truncated"] = truncated[split]
 
     if not write:
-        for split in ("train", "test"):
+        for split in names:
             for _ in records(split):
                 pass
         token_stats()
@@ -350,7 +391,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         """Runs on the complete staged folder, before it is published under its final name."""
         token_stats()
         tokenizer.save(staged / "tokenizer.model")
-        examples = {split: stats["splits"][split]["examples"] for split in ("train", "test")}
+        examples = {split: stats["splits"][split]["examples"] for split in names}
         usage = tfds_builders.disk_usage(staged)
         for split, images in check_written(staged, examples, spots).items():
             stats["splits"][split].update(images=images, bytes_on_disk=usage["splits"][split])
@@ -361,7 +402,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         stats["reused"] = False
         (staged / STATS_FILE).write_text(json.dumps(stats, indent=1))
 
-    tfds_builders.write_instruct_grasp({split: records(split) for split in ("train", "test")}, out, written_config,
+    tfds_builders.write_instruct_grasp({split: records(split) for split in names}, out, written_config,
                                        overwrite=config.overwrite, finish=finish)
     return identity_lib.normalised(stats)  # as JSON reads it back, so a reuse returns the same
 
@@ -396,6 +437,9 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
     parser.add_argument("--overflow", choices=("error", "truncate"), default="error")
     parser.add_argument("--tokenizer", help="an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
     parser.add_argument("--text-pieces", type=int, default=1000, help="pieces of a trained tokenizer besides the symbols")
+    parser.add_argument("--validation-fraction", type=float, default=0.0,
+                        help="share of the training photos (object-wise: whole objects) held out as split "
+                        "'validation', built as the test split is; honest protocol only (default 0: none)")
     parser.add_argument("--ambiguous-mosaics", action="store_true", help="draw distractors at random, as the paper did")
     parser.add_argument("--overwrite", action="store_true",
                         help="rebuild the dataset if its folder exists (default: reuse it and say so)")
@@ -408,7 +452,8 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
         test_crop=args.test_crop, representation=args.representation, angle_code=not args.no_angle_code,
         individual=not args.joint, loss_on=args.loss_on, target_grasp=args.target_grasp, numbers=args.numbers,
         max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer, text_pieces=args.text_pieces,
-        unambiguous=not args.ambiguous_mosaics, overwrite=args.overwrite)
+        unambiguous=not args.ambiguous_mosaics, validation_fraction=args.validation_fraction,
+        overwrite=args.overwrite)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

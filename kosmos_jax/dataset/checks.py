@@ -48,16 +48,27 @@ def check_example(example, config: FormatConfig) -> None:
             raise BuildCheckError(where + f"target {example.target_text!r} gives centre {parsed.grasp[:2]}, not {grasp[:2]}")
 
 
-def check_separation(ids: dict, protocol: str, split: str) -> dict:
-    """Overlaps of the splits' photo and object ids; an error in the honest protocol."""
-    photos = sorted(set(ids["train"]["photos"]) & set(ids["test"]["photos"]))
-    objects = sorted(set(ids["train"]["objects"]) & set(ids["test"]["objects"]))
+def _shared(ids: dict, held: str, other: str, protocol: str, split: str) -> dict:
+    """Photo and object ids of split `held` found in split `other`; an error in the honest protocol."""
+    photos = sorted(set(ids[other]["photos"]) & set(ids[held]["photos"]))
+    objects = sorted(set(ids[other]["objects"]) & set(ids[held]["objects"]))
     if protocol == "honest":
+        reach = "training" if other == "train" else other
         if photos:
-            raise BuildCheckError(f"test photos {photos[:5]} reach training samples")
+            raise BuildCheckError(f"{held} photos {photos[:5]} reach {reach} samples")
         if split == "object" and objects:
-            raise BuildCheckError(f"test objects {objects[:5]} reach training samples")
+            raise BuildCheckError(f"{held} objects {objects[:5]} reach {reach} samples")
     return {"shared_photos": len(photos), "shared_objects": len(objects)}
+
+
+def check_separation(ids: dict, protocol: str, split: str) -> dict:
+    """Overlaps of the splits' photo and object ids; an error in the honest protocol. Train against
+    test at the top level; with a validation split, also "validation": {"train": ..., "test": ...},
+    validation's overlaps with each."""
+    found = _shared(ids, "test", "train", protocol, split)
+    if "validation" in ids:
+        found["validation"] = {other: _shared(ids, "validation", other, protocol, split) for other in ("train", "test")}
+    return found
 
 
 

@@ -22,7 +22,7 @@ from kosmos_jax.instruct.single import single_samples
 
 MULTI_PREFIX = "multi-"
 ALL_BUILD_KINDS = ALL_KINDS + tuple(MULTI_PREFIX + k for k in MULTI_KINDS)
-SPLIT_TAGS = {"train": 0, "test": 1}
+SPLIT_TAGS = {"train": 0, "test": 1, "validation": 2}
 
 
 def parse_kinds(names: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:

@@ -19,7 +19,7 @@ import json
 import jax
 
 from kosmos_jax.baselines.family import BaselineConfig, make_family
-from kosmos_jax.dataset.build import BuildConfig
+from kosmos_jax.dataset.build import BuildConfig, check_validation
 from kosmos_jax.dataset.samples import parse_kinds
 from kosmos_jax.experiments import spec
 from kosmos_jax.experiments.spec import ExperimentError
@@ -59,6 +59,7 @@ def build_settings(data, where: str) -> BuildConfig:
         build = BuildConfig(source=str(data.source), out=None, **settings)
         build.format_config()
         parse_kinds(build.kinds or ("all",))
+        check_validation(build)
     except (TypeError, ValueError) as error:
         raise ExperimentError(f"{where}: data.build: {error}") from None
     if build.augmentations < 1 or build.recipe not in RECIPES:
