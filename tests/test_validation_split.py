@@ -1,10 +1,13 @@
 """The validation split (`--validation-fraction`): held out of the training photos only (by photo
 image-wise, by object object-wise), the fraction's rounding, views made as test views are, the
-separation checks, the identity left as it was at the default 0, the errors for bad values."""
+separation checks, the identity left as it was at the default 0, the errors for bad values; and a
+tiny run whose periodic evaluation reads it, evaluated with `--split=validation`."""
 
 import json
+import os
 import pathlib
 import shutil
+import subprocess
 import sys
 
 import numpy as np
@@ -225,3 +228,29 @@ def test_the_experiment_check_refuses_a_bad_fraction():
     with pytest.raises(ExperimentError, match="arm: data.build: .*honest protocol"):
         checks.build_settings(data, "arm")
 
+
+# -- the trainer and the evaluate command ------------------------------------------------------
+
+def run_module(*args) -> subprocess.CompletedProcess:
+    env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
+    env.pop("XLA_FLAGS", None)  # one CPU device
+    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.mark.slow
+def test_a_run_watches_validation_and_records_test_at_the_end(tmp_path_factory):
+    workdir, root = tmp_path_factory.mktemp("validation_run"), tmp_path_factory.mktemp("validation_datasets")
+    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
+                      f"--config.data.root={root}", "--config.data.build.validation_fraction=0.25",
+                      "--config.train.steps=2", "--config.train.checkpoint_every=2", "--config.train.eval_every=1",
+                      "--config.train.grasp_eval_every=1", "--config.optimizer.warmup_steps=1")
+    assert done.returncode == 0, done.stderr[-3000:]
+    evals = [(r["step"], r["split"], "grasp_accuracy" in r)
+             for r in map(json.loads, (workdir / "metrics.jsonl").read_text().splitlines()) if "split" in r]
+    assert evals == [(1, "validation", True), (2, "validation", True), (2, "test", True)]
+    done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", "--split=validation", "--json")
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = json.loads(done.stdout)
+    assert results["split"] == "validation" and results["step"] == 2 and results["instructions"] > 0
+    assert (workdir / "eval" / "2" / "validation" / "results.json").is_file()

@@ -24,7 +24,9 @@ class Task:
     train_step: Callable  # (state, host batch) -> (state, metrics)
     step_record: Callable  # (step, metrics, host batch, step_s, waited) -> metrics.jsonl line
     describe: Callable  # host batch -> its examples, for the non-finite error
-    test_record: Callable  # (step, state, with_grasps, log) -> the test split's line
+    # (step, state, with_grasps, log) -> an evaluation's line: the test split's, or (KOSMOS-E) the validation
+    # split's when the dataset has one, the last evaluation logging validation's itself and returning test's
+    test_record: Callable
     write_files: Callable  # workdir -> None: files beside run.json (process 0)
 
 

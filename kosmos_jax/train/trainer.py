@@ -168,8 +168,11 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                  seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
-    grasps = GraspEvaluation(model_cfg, mesh, splits["test"], tokenizer, FormatConfig(**dataset.identity["format"]),
-                             dataset.identity["build"]["protocol"])
+    # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
+    watched = "validation" if "validation" in splits else "test"
+    grasps = {name: GraspEvaluation(model_cfg, mesh, splits[name], tokenizer, FormatConfig(**dataset.identity["format"]),
+                                    dataset.identity["build"]["protocol"]) for name in dict.fromkeys((watched, "test"))}
+    grasps["test"].decoder = grasps[watched].decoder  # one decoder: its compiled programs serve both splits
 
     def step_record(step, metrics, host, step_s, waited):
         batch_size = config.train.batch_size
@@ -182,13 +185,21 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                 "data_wait_fraction": min(1.0, waited / step_s),
                 **({"pointing": metrics["pointing"]} if "pointing" in metrics else {})}
 
-    def test_record(step, state, with_grasps: bool, log: MetricsLog) -> dict:
-        """Loss and token accuracy on the test split; with the grasp accuracy of decoded answers if asked."""
-        record = {"step": step, "split": "test", **evaluate(eval_step, state.params, splits["test"], config, sharding)}
+    def split_record(name, step, state, with_grasps: bool, log: MetricsLog) -> dict:
+        """Loss and token accuracy on split `name`; with the grasp accuracy of decoded answers if asked."""
+        record = {"step": step, "split": name, **evaluate(eval_step, state.params, splits[name], config, sharding)}
         if with_grasps:
-            record["grasp_accuracy"] = grasps.grasp_accuracy(state.params)
-            log.message(f"grasp accuracy (test) step {step}: {record['grasp_accuracy']:.2f}%")
+            record["grasp_accuracy"] = grasps[name].grasp_accuracy(state.params)
+            log.message(f"grasp accuracy ({name}) step {step}: {record['grasp_accuracy']:.2f}%")
         return record
+
+    def test_record(step, state, with_grasps: bool, log: MetricsLog) -> dict:
+        """The record of the watched split (validation when the dataset has one, else test); at the
+        last step with a validation split, the validation record is logged here and test's returned."""
+        if watched != "test" and step >= config.train.steps:
+            log.write(split_record(watched, step, state, with_grasps, log))
+            return split_record("test", step, state, with_grasps, log)
+        return split_record(watched, step, state, with_grasps, log)
 
     return Task(
         description=description, batches=batches,
