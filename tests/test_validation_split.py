@@ -229,6 +229,18 @@ def test_the_experiment_check_refuses_a_bad_fraction():
         checks.build_settings(data, "arm")
 
 
+def test_a_fold_record_carries_the_last_validation_figures_when_there_are_any(tmp_path):
+    from kosmos_jax.experiments import records
+
+    lines = [{"step": 1, "loss": 2.0}, {"step": 1, "split": "validation", "loss": 1.5, "accuracy": 0.1},
+             {"step": 2, "split": "validation", "loss": 1.2, "accuracy": 0.2, "grasp_accuracy": 5.0},
+             {"step": 2, "split": "test", "loss": 1.3, "accuracy": 0.15, "grasp_accuracy": 4.0}]
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+    assert records.validation_evaluation(tmp_path) == {"step": 2, "loss": 1.2, "accuracy": 0.2, "grasp_accuracy": 5.0}
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines if line.get("split") != "validation"))
+    assert records.validation_evaluation(tmp_path) is None
+
+
 # -- the trainer and the evaluate command ------------------------------------------------------
 
 def run_module(*args) -> subprocess.CompletedProcess:

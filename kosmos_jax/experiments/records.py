@@ -14,6 +14,7 @@ import platform
 
 import jax
 
+from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.train.trainer import RUN_FILE
 
 FOLD_FILE = "fold.json"
@@ -48,6 +49,13 @@ def training_examples(description: dict) -> int:
     if not stats.is_file():
         raise FileNotFoundError(f"{stats} is missing: the run's dataset (run.json dataset_dir) is gone")
     return int(json.loads(stats.read_text())["splits"]["train"]["examples"])
+
+
+def validation_evaluation(workdir) -> dict | None:
+    """The trainer's last evaluation on the validation split (its metrics.jsonl line, less "split"),
+    or None when the run logged none (its dataset holds no validation split)."""
+    found = [r for r in read_metrics(workdir) if r.get("split") == "validation"]
+    return {k: v for k, v in found[-1].items() if k != "split"} if found else None
 
 
 def cpu_model() -> str:

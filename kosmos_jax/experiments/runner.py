@@ -5,8 +5,9 @@
 Per fold, in WORKDIR/<arm>/<protocol>-<scheme>-fold<i>: trainer.train (which resumes a half-trained
 run itself), the evaluate command's evaluate + write (WORKDIR/.../eval/STEP/; results already there
 for the trained step are read, not decoded again), the no-learning predictors on the run's test
-instructions (KOSMOS-E arms), then the record fold.json. A fold with a record is skipped. A fold that
-fails is reported and the sweep goes on; a SIGTERM'd training stops the sweep (SweepStopped) after
+instructions (KOSMOS-E arms), then the record fold.json (with, when the arm's data.build holds out a
+validation split, the trainer's last validation figures under "validation"). A fold with a record is
+skipped. A fold that fails is reported and the sweep goes on; a SIGTERM'd training stops the sweep (SweepStopped) after
 the trainer's checkpoint, and the same command resumes. Every fold's config is checked (checks.py:
 model shapes, optimiser, batch layout, data settings) and each arm's data source and KOSMOS-2
 folder looked up before anything trains, so a bad arm fails at once. A fold's seconds are those of
@@ -98,6 +99,7 @@ def run_fold(config, run: spec.Run, fold_config, root, *, train: Callable, evalu
     scored = time.perf_counter()
     baselines = no_learning_scores(workdir)
     description = records.run_description(workdir)
+    validation = records.validation_evaluation(workdir)
     entry = config.arms[run.arm]
     record = {
         "experiment": config.name, "arm": run.arm, "protocol": run.protocol, "scheme": run.scheme, "fold": run.fold,
@@ -106,6 +108,7 @@ def run_fold(config, run: spec.Run, fold_config, root, *, train: Callable, evalu
         "accuracy": results["accuracy"], "by_kind": results.get("by_kind", {}), "by_scene": results.get("by_scene", {}),
         "eval": {key: results.get(key) for key in ("step", "split", "instructions", "examples", "protocol", "backend")},
         "unconstrained": results.get("unconstrained"),
+        **({"validation": validation} if validation else {}),  # the trainer's last validation figures, if any
         "training_examples": records.training_examples(description),
         "train": summary,
         "seconds": {"train": round(trained - started, 1), "evaluate": round(scored - trained, 1),
