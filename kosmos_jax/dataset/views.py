@@ -6,8 +6,8 @@ Two kinds of view:
   recipe "random": `copies` rotations with one translation each; "paper": KOSMOS-E's script,
   copies / 4 whole-degree rotations with 4 whole-pixel translations each (16 copies = 4 x 4).
 - `cropped_views`: one view per photo, the 351 crop's central 224 window with no rotation or
-  translation: the honest protocol's test views (with a crop policy that does not look at the
-  ground truth, "image_centre" by default).
+  translation: the honest protocol's test views, and its validation views, made the same way
+  (with a crop policy that does not look at the ground truth, "image_centre" by default).
 
 Each photo gets its own PRNG key, `fold_in(PRNGKey(seed), index in the sorted photo list)`, so a
 photo's views do not depend on its batch-mates or on the batch size. Grasps whose centre leaves the
