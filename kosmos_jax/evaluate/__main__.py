@@ -5,10 +5,21 @@
     python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
 
 Writes WORKDIR/eval/STEP/results.json, results.md and answers.jsonl (one line per example: both
-answers, whether they parse); another split or a Cornell folder goes to eval/STEP/<split> or
-eval/STEP/cornell-<folder name>. --json prints results.json as one line on stdout; `accuracy` at
-its top level is the constrained accuracy overall, in percent. The split is scored under the
-run's protocol; a Cornell folder under the honest one.
+answers, whether they parse, its target text, whether its instruction's answers and its targets
+make a correct grasp); another split or a Cornell folder goes to eval/STEP/<split> or
+eval/STEP/cornell-<folder name>. --json prints results.json as one line on stdout. The split is
+scored under the run's protocol; a Cornell folder under the honest one. results.json holds:
+  accuracy           the constrained accuracy overall, in percent;
+  constrained, unconstrained   each decoding's accuracy, correct, answers, parse failures;
+  target_ceiling     the accuracy of the examples' own targets, read back from their stored tokens
+                     and parsed, combined and scored exactly as the answers are: what a model that
+                     reproduced its targets would score (below ~100 a flaw of the targets, of
+                     combining location and angle, or of the protocol's w and h);
+  distinct           {"answers": ..., "targets": ...}: how many distinct texts, centres, angles
+                     and combined grasps the constrained answers and the targets hold;
+  by_kind, by_scene  {group: accuracy, instructions, examples, unconstrained_accuracy,
+                     unconstrained_parse_failures, target_ceiling};
+and the run, split, data source, text format and settings it was scored with.
 
 A baseline's run (configs/baselines.py, config.task "baseline") is scored the same way, one
 predicted grasp a view as a "non" instruction (evaluate/baseline_run.py): the same files and keys,

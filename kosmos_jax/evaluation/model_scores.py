@@ -3,11 +3,17 @@ the grammar) -> parses -> one grasp per instruction -> rectangle metric.
 
     evaluation = GraspEvaluation(model_config, mesh, split, tokenizer, format_config, protocol)
     evaluation.grasp_accuracy(params)       # percent, constrained (what the trainer logs)
+    evaluation.target_ceiling()             # percent: the examples' own targets scored as answers
     results, answers = evaluation.results(params)   # both decodings, per kind and scene
 
 Built once per split: the prompts, the batches (each part's prompts left-padded to one length,
-the last batch filled with copies of its first row, so each part compiles once) and the
-constraints; each call decodes with the parameters it is given.
+the last batch filled with copies of its first row, so each part compiles once), the constraints
+and each example's stored target tokens; each call decodes with the parameters it is given.
+
+The target ceiling reads each example's target tokens back as if the model had generated them
+(the question's own parse), combines them into grasps and scores them as the answers are: what a
+model that reproduced its targets would score. Below 100% it points at the targets, the parse,
+the combining of location and angle, or the protocol's w and h, not at the model.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from jax.sharding import Mesh
 from kosmos_jax.evaluation import tally
 from kosmos_jax.evaluation.decoding import Decoder
 from kosmos_jax.evaluation.instructions import Instruction, combine, group_instructions, text
-from kosmos_jax.evaluation.prompts import left_padded, prompt
+from kosmos_jax.evaluation.prompts import left_padded, prompt, target_ids
 from kosmos_jax.evaluation.questions import Question, questions
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.text.formatter import FormatConfig
@@ -52,12 +58,14 @@ class GraspEvaluation:
             raise ValueError(f"max_examples={max_examples} holds no whole instruction" if every else "no examples")
         asked = questions(tokenizer, config, model_config.text.vocab_size)
         self.question_of: dict[int, Question] = {}
+        self.target_ids: dict[int, np.ndarray] = {}  # each example's stored value tokens and </s>
         prompts = {}
         for instruction in self.instructions:
             for part, index in instruction.examples.items():
                 question = asked[(instruction.answer, part)]
                 self.question_of[index] = question
                 prompts[index] = prompt(records[index], tokenizer, question.prompt.cue)
+                self.target_ids[index] = target_ids(records[index], tokenizer, question.prompt.cue)
         self.batches = []  # (question, example indices, (ids, mask, image mask))
         for question in dict.fromkeys(self.question_of.values()):
             indices = [i for i, q in self.question_of.items() if q is question]
@@ -84,6 +92,15 @@ class GraspEvaluation:
                 out[index] = question.parse(generated, self.config)
         return out
 
+    def targets(self) -> dict[int, tuple[str, object]]:
+        """{example index: (target text, its parse)} of every example: its stored target tokens read
+        as answers() reads generated ones."""
+        return {index: self.question_of[index].parse(ids, self.config) for index, ids in self.target_ids.items()}
+
+    def target_ceiling(self) -> float:
+        """Percent of instructions whose own targets, scored as answers, make a correct grasp."""
+        return tally.percent(self.successes(self.targets()))
+
     def grasps(self, answers: Mapping[int, tuple[str, object]]) -> np.ndarray:
         """[G, 3] (x, y, theta) of every instruction, NaN where an answer did not parse."""
         return np.stack([combine(instruction, {part: answers[i][1] for part, i in instruction.examples.items()})
@@ -97,10 +114,12 @@ class GraspEvaluation:
         return tally.percent(self.successes(self.answers(params)))
 
     def results(self, params) -> tuple[dict, list[dict]]:
-        """(figures of both decodings, overall and per kind and scene; one row per example with
-        both answers)."""
+        """(figures of both decodings and of the targets, overall and per kind and scene, and the
+        distinct answers and targets; one row per example with both answers)."""
         held, free = self.answers(params, constrained=True), self.answers(params, constrained=False)
         success, free_success = self.successes(held), self.successes(free)
+        targets = self.targets()
+        ceiling = self.successes(targets)
         free_failed = np.array([sum(not free[i][1].ok for i in inst.examples.values()) for inst in self.instructions])
 
         def decoding(hits, answers):
@@ -109,11 +128,15 @@ class GraspEvaluation:
                     "parse_failures": failures, "parse_failure_rate": tally.percent(
                         np.array([not parsed.ok for _, parsed in answers.values()]))}
 
-        groups = lambda label: tally.group_figures(self.instructions, success, free_success, free_failed, label)
+        groups = lambda label: tally.group_figures(self.instructions, success, free_success, free_failed, label,
+                                                   ceiling)
         results = {"accuracy": tally.percent(success), "instructions": len(self.instructions),
                    "examples": self.examples, "protocol": self.protocol, "backend": self.backend,
                    "wh_policy": tally.WH_POLICY[self.protocol],
                    "constrained": decoding(success, held), "unconstrained": decoding(free_success, free),
+                   "target_ceiling": tally.percent(ceiling),
+                   "distinct": {"answers": tally.distinct(self.instructions, held),
+                                "targets": tally.distinct(self.instructions, targets)},
                    "by_kind": groups(lambda i: i.kind), "by_scene": groups(lambda i: i.scene)}
         records = getattr(self.split, "examples", self.split)
         rows = [{"example": index, "kind": instruction.kind, "scene": instruction.scene, "part": part,
@@ -121,6 +144,7 @@ class GraspEvaluation:
                  "instruction": instruction.instruction, "target_text": text(records[index]["target_text"]),
                  "answer": held[index][0], "answer_parses": held[index][1].ok,
                  "unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok,
-                 "correct": bool(success[number]), "unconstrained_correct": bool(free_success[number])}
+                 "correct": bool(success[number]), "unconstrained_correct": bool(free_success[number]),
+                 "target_correct": bool(ceiling[number])}
                 for number, instruction in enumerate(self.instructions) for part, index in instruction.examples.items()]
         return results, rows

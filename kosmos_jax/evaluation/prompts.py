@@ -1,4 +1,6 @@
-"""Prompts from stored examples: the tokens the model was trained on, up to where the answer starts.
+"""Prompts from stored examples: the tokens the model was trained on, up to where the answer starts;
+and the stored answer tokens after it, which the evaluation scores as if a model had generated them
+(model_scores.py: the target ceiling).
 
 layout.py writes <s><image> slots </image> instruction cue value </s>, each text segment encoded
 on its own, so the value is a token suffix: the prompt is the stored tokens before it (the cue
@@ -26,17 +28,30 @@ def answer_value(record: Mapping, cue: str) -> str:
     return target[len(cue) + 1:]
 
 
-def prompt(record: Mapping, tokenizer: Tokenizer, cue: str) -> tuple[np.ndarray, np.ndarray]:
-    """(token ids, image mask) of the record's prompt: its stored tokens before the value."""
+def _answer_start(record: Mapping, tokenizer: Tokenizer, cue: str) -> tuple[np.ndarray, int]:
+    """(the record's stored tokens, where its value starts in them)."""
     length = int(record["length"])
     tokens = np.asarray(record["tokens"])[:length]
     value = tokenizer.encode(answer_value(record, cue))
     start = length - 1 - len(value)
-    if tokens[-1] != tokenizer.eos_id or tokens[start:-1].tolist() != value:
+    if start < 0 or tokens[-1] != tokenizer.eos_id or tokens[start:-1].tolist() != value:
         raise ValueError(f"stored tokens of a {text(record['part'])} example of photos "
                          f"{[text(p) for p in record['photo_ids']]} do not end with its value and </s>: "
                          "another tokenizer, or truncated")
+    return tokens, start
+
+
+def prompt(record: Mapping, tokenizer: Tokenizer, cue: str) -> tuple[np.ndarray, np.ndarray]:
+    """(token ids, image mask) of the record's prompt: its stored tokens before the value."""
+    tokens, start = _answer_start(record, tokenizer, cue)
     return tokens[:start], np.asarray(record["image_mask"], bool)[:start]
+
+
+def target_ids(record: Mapping, tokenizer: Tokenizer, cue: str) -> np.ndarray:
+    """The record's stored tokens after its prompt (its value and </s>): what a model that reproduced
+    its target would generate."""
+    tokens, start = _answer_start(record, tokenizer, cue)
+    return tokens[start:]
 
 
 def left_padded(prompts: Sequence[tuple[np.ndarray, np.ndarray]], length: int, pad_id: int):

@@ -1,5 +1,6 @@
 """Grasps of instructions -> rectangle-metric successes -> accuracy overall, per kind and per scene,
-each with the number of instructions and of examples behind it; and its Markdown table.
+each with the number of instructions and of examples behind it; how many different answers were
+given (distinct); and its Markdown table.
 
 An answer that did not parse is a miss: its grasp is NaN, which the metric never counts as a
 success, and no ground truth ever stands in for it (whatever the protocol).
@@ -7,12 +8,13 @@ success, and no ground truth ever stands in for it (whatever the protocol).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from kosmos_jax.evaluation.instructions import Instruction
+from kosmos_jax.evaluation.instructions import Instruction, combine
 from kosmos_jax.evaluation.scoring import WH_POLICY
+from kosmos_jax.grasp_text import ParsedGrasp
 from kosmos_jax.metrics import grasp_success
 
 
@@ -55,39 +57,84 @@ def group_accuracy(instructions: Sequence[Instruction], success: np.ndarray, lab
 
 
 def group_figures(instructions: Sequence[Instruction], success: np.ndarray, free_success: np.ndarray,
-                  free_failed: np.ndarray, label) -> dict[str, dict]:
-    """{group: {accuracy, instructions, examples, unconstrained_accuracy, unconstrained_parse_failures}}
-    with `label(instruction)` naming each instruction's group; `free_failed` [G] counts each
-    instruction's unconstrained answers that did not parse."""
+                  free_failed: np.ndarray, label, ceiling: np.ndarray | None = None) -> dict[str, dict]:
+    """{group: {accuracy, instructions, examples, unconstrained_accuracy, unconstrained_parse_failures
+    [, target_ceiling]}} with `label(instruction)` naming each instruction's group; `free_failed` [G]
+    counts each instruction's unconstrained answers that did not parse; `ceiling` [G], when given, says
+    whether each instruction's own targets, scored as answers, hit."""
     return {name: {**_figures(instructions, success, idx), "unconstrained_accuracy": percent(free_success[idx]),
-                   "unconstrained_parse_failures": int(free_failed[idx].sum())}
+                   "unconstrained_parse_failures": int(free_failed[idx].sum()),
+                   **({} if ceiling is None else {"target_ceiling": percent(ceiling[idx])})}
             for name, idx in group_members(instructions, label).items()}
 
 
+def distinct(instructions: Sequence[Instruction], answers: Mapping[int, tuple[str, ParsedGrasp]]) -> dict[str, int]:
+    """How many different answers the examples of `instructions` got ({example index: (text, parse)}):
+      texts    distinct answer texts, over every part (parsed or not);
+      centres  distinct (x, y) of the grasp or location answers that parsed;
+      angles   distinct angles of the grasp or angle answers that parsed (an angle an instruction
+               states is no answer);
+      grasps   distinct (x, y, theta) of the instructions whose answers all parsed, combined as the
+               metric sees them (instructions.combine).
+    One value repeated for every instruction is 1 in its field, a fixed point of the model."""
+    texts, centres, angles = set(), set(), set()
+    for instruction in instructions:
+        for part, index in instruction.examples.items():
+            text, parsed = answers[index]
+            texts.add(text)
+            if not parsed.ok:
+                continue
+            if part in ("grasp", "location"):
+                centres.add(tuple(np.asarray(parsed.grasp[:2], np.float64).tolist()))
+            if part in ("grasp", "angle"):
+                angles.add(float(parsed.grasp[4]))
+    grasps = [combine(instruction, {part: answers[i][1] for part, i in instruction.examples.items()})
+              for instruction in instructions]
+    whole = {tuple(np.asarray(grasp, np.float64).tolist()) for grasp in grasps if np.isfinite(grasp).all()}
+    return {"texts": len(texts), "centres": len(centres), "angles": len(angles), "grasps": len(whole)}
+
+
+def distinct_text(counts: Mapping[str, int]) -> str:
+    """"12 texts, 10 centres, 5 angles, 12 grasps"."""
+    return ", ".join(f"{value} {name}" for name, value in counts.items())
+
+
 def markdown(results: dict) -> str:
-    """The results as a Markdown table: overall, per scene, per kind. Results without an
-    unconstrained decoding (a baseline's) get the accuracy column alone."""
+    """The results as a Markdown table: overall, per scene, per kind, with the target ceiling beside
+    the accuracy where the results have one, and a line of distinct answers and targets where they
+    have it. Results without an unconstrained decoding (a baseline's) get the accuracy column alone."""
     decoded = "unconstrained" in results
+    ceiling = "target_ceiling" in results
     who = "" if decoded else f"{results['model']}, "
     head = (f"{who}Step {results['step']}, {results['split']} ({results['examples']} examples, "
             f"{results['instructions']} instructions), protocol `{results['protocol']}`, IoU `{results['backend']}`; "
-            + ("accuracy in percent, a parse failure counts as a miss.\n\n" if decoded
-               else "accuracy in percent of one predicted grasp a view.\n\n"))
+            + ("accuracy in percent, a parse failure counts as a miss" if decoded
+               else "accuracy in percent of one predicted grasp a view")
+            + ("; target ceiling: the examples' own targets scored as answers.\n\n" if ceiling else ".\n\n"))
     if decoded:
-        lines = ["| group | instructions | examples | accuracy (constrained) | accuracy (unconstrained) "
-                 "| unconstrained parse failures |", "|---|---:|---:|---:|---:|---:|"]
+        lines = ["| group | instructions | examples | accuracy (constrained) |" + (" target ceiling |" if ceiling else "")
+                 + " accuracy (unconstrained) | unconstrained parse failures |",
+                 "|---|---:|---:|---:|---:|---:|" + ("---:|" if ceiling else "")]
         free = results["unconstrained"]
         extra = {"unconstrained_accuracy": free["accuracy"], "unconstrained_parse_failures": free["parse_failures"]}
     else:
         lines = ["| group | instructions | examples | accuracy |", "|---|---:|---:|---:|"]
         extra = {}
     overall = {"accuracy": results["accuracy"], "instructions": results["instructions"],
-               "examples": results["examples"], **extra}
+               "examples": results["examples"], **extra,
+               **({"target_ceiling": results["target_ceiling"]} if ceiling else {})}
     groups = [("all", overall)] + [(f"scene {k}", v) for k, v in results["by_scene"].items()] \
         + [(f"kind {k}", v) for k, v in results["by_kind"].items()]
     for name, g in groups:
         cells = f"| {name} | {g['instructions']} | {g['examples']} | {g['accuracy']:.2f} |"
+        if decoded and ceiling:
+            cells += f" {g['target_ceiling']:.2f} |" if "target_ceiling" in g else " |"
         if decoded:
             cells += f" {g['unconstrained_accuracy']:.2f} | {g['unconstrained_parse_failures']} |"
         lines.append(cells)
-    return head + "\n".join(lines) + "\n"
+    table = head + "\n".join(lines) + "\n"
+    if "distinct" in results:
+        spread = results["distinct"]
+        table += (f"\nDistinct (constrained) answers: {distinct_text(spread['answers'])}; "
+                  f"targets: {distinct_text(spread['targets'])}.\n")
+    return table
