@@ -112,7 +112,8 @@ def markdown(results: dict) -> str:
                else "accuracy in percent of one predicted grasp a view")
             + ("; target ceiling: the examples' own targets scored as answers.\n\n" if ceiling else ".\n\n"))
     if decoded:
-        lines = ["| group | instructions | examples | accuracy (constrained) |" + (" target ceiling |" if ceiling else "")
+        ceiling_head = " target ceiling |" if ceiling else ""
+        lines = ["| group | instructions | examples | accuracy (constrained) |" + ceiling_head
                  + " accuracy (unconstrained) | unconstrained parse failures |",
                  "|---|---:|---:|---:|---:|---:|" + ("---:|" if ceiling else "")]
         free = results["unconstrained"]
