@@ -2,7 +2,8 @@
 wrote (two steps), its checkpoint decoded, parsed and scored by `python -m kosmos_jax.evaluate`; the
 unconstrained parse failures counted as the parser counts them; constrained answers of a random
 model always parse; the centre and angle answers of one instruction combined into one grasp; the
-errors a user meets; a Cornell-format folder of synthetic photos."""
+targets scored as answers (the target ceiling) and the distinct answers; the errors a user meets;
+a Cornell-format folder of synthetic photos."""
 
 import json
 import os
@@ -21,8 +22,8 @@ from kosmos_jax.evaluate.__main__ import main
 from kosmos_jax.evaluate.run import open_run
 from kosmos_jax.evaluation.instructions import combine, group_instructions
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
-from kosmos_jax.evaluation.tally import successes
-from kosmos_jax.grasp_text import ParsedGrasp
+from kosmos_jax.evaluation.tally import distinct, markdown, successes
+from kosmos_jax.grasp_text import ParsedGrasp, format_angle
 from kosmos_jax.models.kosmos2 import abstract_model
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.mesh import make_mesh
@@ -76,7 +77,21 @@ def test_a_checkpoint_is_decoded_parsed_and_scored_end_to_end(evaluated):
         assert sum(g["examples"] for g in groups.values()) == results["examples"]
         assert sum(g["instructions"] for g in groups.values()) == results["instructions"]
     assert set(results["by_scene"]) == {"single"}  # kind NON only: no mosaics
-    assert "| all |" in (folder / "results.md").read_text()
+    # the targets, read back from their tokens and scored as answers, all hit: nothing lost between
+    # the targets, their parse, the combining of location and angle and the metric
+    assert results["target_ceiling"] == 100.0
+    assert all(g["target_ceiling"] == 100.0 for groups in (results["by_kind"], results["by_scene"])
+               for g in groups.values())
+    for who in ("answers", "targets"):
+        spread = results["distinct"][who]
+        assert set(spread) == {"texts", "centres", "angles", "grasps"}
+        assert 1 <= spread["centres"] <= results["instructions"] and 1 <= spread["angles"] <= results["instructions"]
+        assert spread["texts"] <= results["examples"] and spread["grasps"] <= results["instructions"]
+    table = (folder / "results.md").read_text()
+    assert "| all |" in table and "target ceiling |" in table and "| 100.00 |" in table
+    assert "Distinct (constrained) answers:" in table
+    rows = [json.loads(line) for line in (folder / "answers.jsonl").read_text().splitlines()]
+    assert all(row["target_correct"] for row in rows)
 
 
 def test_the_unconstrained_failures_are_the_answers_the_parser_refuses(evaluated, workdir):
@@ -163,6 +178,83 @@ def test_grouping_follows_the_build_order_and_each_kind_s_answer():
         group_instructions([record("angle")])
 
 
+def test_distinct_counts_each_part_of_hand_made_answers():
+    records = [record(part, photo=f"pcd010{i}") for i in range(4) for part in ("location", "angle")]
+    instructions = group_instructions(records)
+    assert len(instructions) == 4
+    answers = {0: ("x_10 y_20", parsed(10, 20)), 1: ("a_3", parsed(theta=0.3)),
+               2: ("x_10 y_20", parsed(10, 20)), 3: ("a_3", parsed(theta=0.3)),
+               4: ("x_50 y_20", parsed(50, 20)), 5: ("a_3", parsed(theta=0.3)),
+               6: ("x_9", parsed(ok=False)), 7: ("a_3", parsed(theta=0.3))}
+    # four answers with the same angle code: one angle; the unparsed location is a text but no centre
+    assert distinct(instructions, answers) == {"texts": 4, "centres": 2, "angles": 1, "grasps": 2}
+    # an angle instruction states its angle: its location answer is a centre, no angle is answered
+    sentence = "Grasp the object with a rotation angle of a_160 radians."
+    stated = group_instructions([record("location", "angle", "single", sentence),
+                                 record("location", "angle", "single", sentence, photo="pcd0101")])
+    assert distinct(stated, {0: ("x_1 y_2", parsed(1, 2)), 1: ("x_1 y_3", parsed(1, 3))}) == \
+        {"texts": 2, "centres": 2, "angles": 0, "grasps": 2}
+
+
+def test_the_table_puts_the_target_ceiling_beside_the_accuracy_and_reads_older_results():
+    group = {"accuracy": 25.0, "instructions": 4, "examples": 8, "unconstrained_accuracy": 0.0,
+             "unconstrained_parse_failures": 3}
+    older = {"step": 2, "split": "test", "examples": 8, "instructions": 4, "protocol": "honest", "backend": "exact",
+             "accuracy": 25.0, "unconstrained": {"accuracy": 0.0, "parse_failures": 3},
+             "by_scene": {"single": group}, "by_kind": {"non": group}}
+    table = markdown(older)
+    assert "| all | 4 | 8 | 25.00 | 0.00 | 3 |" in table and "ceiling" not in table and "Distinct" not in table
+    spread = {"texts": 3, "centres": 2, "angles": 1, "grasps": 2}
+    newer = {**older, "target_ceiling": 75.0, "distinct": {"answers": spread, "targets": dict(spread, angles=4)},
+             "by_kind": {"non": {**group, "target_ceiling": 75.0}},
+             "by_scene": {"single": {**group, "target_ceiling": 75.0}}}
+    table = markdown(newer)
+    assert "| accuracy (constrained) | target ceiling | accuracy (unconstrained) |" in table
+    assert "| all | 4 | 8 | 25.00 | 75.00 | 0.00 | 3 |" in table
+    assert "| kind non | 4 | 8 | 25.00 | 75.00 | 0.00 | 3 |" in table
+    assert ("Distinct (constrained) answers: 3 texts, 2 centres, 1 angles, 2 grasps; "
+            "targets: 3 texts, 2 centres, 4 angles, 2 grasps.") in table
+
+
+def with_value(record_, evaluation, index, tokenizer, value):
+    """Example `index`'s record with its target value replaced by `value`, its stored tokens and text made to match."""
+    cue = evaluation.question_of[index].prompt.cue
+    prompt_length = int(record_["length"]) - len(evaluation.target_ids[index])
+    tokens = list(np.asarray(record_["tokens"])[:prompt_length]) + tokenizer.encode(value) + [tokenizer.eos_id]
+    return {**record_, "tokens": np.asarray(tokens, np.int32), "length": len(tokens),
+            "target_text": f"{cue} {value}".encode()}
+
+
+def test_the_targets_scored_as_answers_make_the_ceiling_and_a_corrupted_target_lowers_it(workdir):
+    run = open_run(workdir)
+    one_device = make_mesh(1, 1, 1, devices=jax.devices()[:1])
+    records = [dict(r) for r in run.split("test").examples]
+
+    evaluation_of = lambda records_: GraspEvaluation(run.model_config, one_device, records_, run.tokenizer,
+                                                     run.format_config, run.protocol, batch_size=4)
+    evaluation = evaluation_of(records)
+    count = len(evaluation.instructions)
+    assert count >= 2 and evaluation.target_ceiling() == 100.0
+    targets = evaluation.targets()
+    # the stored tokens read back as the answers are read give the stored target texts
+    assert {i: text for i, (text, _) in targets.items()} == {i: records[i]["target_text"].decode() for i in targets}
+    first, second = evaluation.instructions[:2]
+    # a target a quarter turn off its grasp: it parses, combines and misses
+    angle = first.examples["angle"]
+    turned = targets[angle][1].grasp[4] + np.pi / 2
+    code = format_angle(turned, run.format_config.angle_code).rsplit(" ", 1)[-1]  # "a_<k>", the cue's value
+    records[angle] = with_value(records[angle], evaluation, angle, run.tokenizer, code)
+    corrupted = evaluation_of(records)
+    assert corrupted.targets()[angle][1].ok
+    assert corrupted.target_ceiling() == pytest.approx(100.0 * (count - 1) / count, abs=1e-3)
+    # a location that does not parse: a miss too, never a ground truth in its place
+    location = second.examples["location"]
+    records[location] = with_value(records[location], evaluation, location, run.tokenizer, "a_3")
+    corrupted = evaluation_of(records)
+    assert not corrupted.targets()[location][1].ok
+    assert corrupted.target_ceiling() == pytest.approx(100.0 * (count - 2) / count, abs=1e-3)
+
+
 def run_cli(capsys, *args) -> tuple[int, str, str]:
     code = main(list(args))
     out = capsys.readouterr()
@@ -196,6 +288,8 @@ def test_every_photo_of_a_cornell_folder_is_scored(workdir, tmp_path):
     assert results["split"] == "cornell-photos" and results["protocol"] == "honest" and results["kinds"] == ["non"]
     assert results["photos"] == 3 and results["instructions"] == 3 - results["views_without_grasps"]
     assert sum(g["examples"] for g in results["by_kind"].values()) == results["examples"] == 2 * results["instructions"]
+    assert results["target_ceiling"] == 100.0 and results["by_kind"]["non"]["target_ceiling"] == 100.0
+    assert results["distinct"]["targets"]["grasps"] == results["instructions"]  # one photo, one target grasp
     assert (workdir / "eval" / "2" / "cornell-photos" / "results.json").is_file()
 
 
