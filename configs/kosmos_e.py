@@ -110,6 +110,7 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.eval_batches = 4  # test batches per evaluation (0: the whole test split)
     train.grasp_eval_every = 0  # grasp accuracy of decoded test answers every N steps (0: only at the end)
     train.pointing_loss = 0.0  # weight of the connector's pointing loss (kosmos_jax.train.loss.pointing_sum); 0: none
+    train.angle_smoothing = 0.0  # > 0: circular smooth labels on angle tokens, this many bins wide (train.loss); 0: none
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

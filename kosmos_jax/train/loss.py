@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 from kosmos_jax.models.connector import cell_index, grid_side
@@ -28,6 +29,31 @@ def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> di
         "correct": jnp.sum(hit & counted, dtype=jnp.int32),
         "tokens": jnp.sum(counted, dtype=jnp.int32),
     }
+
+
+def circular_kernel(bins: int, width: float) -> np.ndarray:
+    """[bins, bins] float32: row k is a Gaussian of `width` bins around bin k, wrapped (bin 0 lies next
+    to bin bins-1) and normalised to sum 1; the soft target of an angle token (a circular smooth label)."""
+    offsets = np.arange(bins)[None, :] - np.arange(bins)[:, None]
+    distance = np.minimum(np.abs(offsets), bins - np.abs(offsets))
+    kernel = np.exp(-0.5 * (distance / width) ** 2)
+    return (kernel / kernel.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
+def smoothed_angle_sum(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array, angle_ids: jax.Array,
+                       kernel: jax.Array) -> jax.Array:
+    """The training objective with circular smooth labels on angle tokens, as a sum over the marked targets:
+    a target that is angle bin k (tokens[t] == angle_ids[k]) is scored by the cross-entropy against
+    kernel[k] spread over the angle tokens, so a_254 and a_1 count as near misses of a_0; every other
+    target by the usual cross-entropy. angle_ids int [bins]: the token id of each bin, in order."""
+    log_p = jax.nn.log_softmax(logits[:, :-1].astype(jnp.float32), axis=-1)
+    targets = tokens[:, 1:]
+    counted = loss_mask[:, 1:]
+    bin_of = jnp.full((logits.shape[-1],), -1, jnp.int32).at[angle_ids].set(jnp.arange(angle_ids.shape[0]))
+    target_bin = bin_of[targets]
+    hard = -jnp.take_along_axis(log_p, targets[..., None], axis=-1)[..., 0]
+    soft = -jnp.sum(kernel[jnp.maximum(target_bin, 0)] * log_p[..., angle_ids], axis=-1)
+    return jnp.sum(jnp.where(counted, jnp.where(target_bin >= 0, soft, hard), 0.0))
 
 
 def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:

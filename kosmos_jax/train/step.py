@@ -33,7 +33,7 @@ from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
-from kosmos_jax.train.loss import means, pointing_sum, token_sums
+from kosmos_jax.train.loss import circular_kernel, means, pointing_sum, smoothed_angle_sum, token_sums
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
 
@@ -96,26 +96,39 @@ def _all_finite(tree) -> jax.Array:
 
 
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
-                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0) -> Callable:
+                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
+                    angle_ids=None, angle_smoothing: float = 0.0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
     (of this update), grad_norm (before clipping), update_norm, param_norm (after), tokens (loss
     tokens of the global batch), finite; with `pointing_loss` > 0, also pointing: the connector's
-    pointing cross-entropy (`loss.pointing_sum`), added to the loss with that weight.
+    pointing cross-entropy (`loss.pointing_sum`), added to the loss with that weight. With
+    `angle_smoothing` > 0 (a width in angle bins) the gradient is that of circular smooth labels on the
+    angle tokens (`loss.smoothed_angle_sum`; angle_ids: each bin's token id), while `loss` stays the
+    plain cross-entropy, comparable with runs without it.
     """
+    if angle_smoothing and (angle_ids is None or len(angle_ids) == 0):
+        raise ValueError("angle_smoothing needs the angle tokens' ids (a vocabulary with value tokens: "
+                         "numbers=values and the angle code)")
+    kernel = jnp.asarray(circular_kernel(len(angle_ids), angle_smoothing)) if angle_smoothing else None
+    angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing else None
     graphdef, _, rest = split_model(abstract_model(model_config))
     state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
 
     def loss_sum(params, batch, key):
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
         features = image_features(model, batch)
-        sums = token_sums(logits(model, batch, features), batch["tokens"], batch["loss_mask"])
+        scores = logits(model, batch, features)
+        sums = token_sums(scores, batch["tokens"], batch["loss_mask"])
+        objective = sums["loss_sum"]
+        if angle_smoothing:
+            objective = smoothed_angle_sum(scores, batch["tokens"], batch["loss_mask"], angle_ids, kernel)
         if not pointing_loss:
-            return sums["loss_sum"], sums
+            return objective, sums
         log_probs = model.image_to_text_projection.pointing_log_probs(features)
         sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], batch["image"].shape[1], batch["loss_mask"])
-        return sums["loss_sum"] + pointing_loss * sums["pointing_sum"], sums
+        return objective + pointing_loss * sums["pointing_sum"], sums
 
     def accumulate(params, step, parts):
         def add(carry, indexed):

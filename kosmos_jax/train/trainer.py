@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from kosmos_jax import geometry
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models import value_embeddings, weights
@@ -154,6 +155,15 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
             "examples_per_process": examples}
 
 
+def angle_token_ids(tokenizer) -> np.ndarray:
+    """The token ids of a_0 .. a_255 in bin order, or an empty array when the vocabulary has no value tokens."""
+    rows = value_embeddings.value_rows(tokenizer.piece_texts()).get("a")
+    if rows is None or len(rows[0]) != geometry.ANGLE_BINS:
+        return np.zeros((0,), np.int32)
+    ids, phases = rows
+    return ids[np.argsort(phases)].astype(np.int32)
+
+
 def kosmos_task(config, mesh, tx, schedule) -> Task:
     """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
     dataset = prepare_data(config.data)
@@ -165,7 +175,9 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
                                      jax.process_index(), jax.process_count())
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
-                                 seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0))
+                                 seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0),
+                                 angle_ids=angle_token_ids(tokenizer),
+                                 angle_smoothing=config.train.get("angle_smoothing", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too

@@ -1,0 +1,94 @@
+"""Circular smooth labels on angle tokens (train.loss.smoothed_angle_sum): near angle bins, across the
+wrap from a_255 to a_0 too, are near misses; every other token keeps the plain cross-entropy."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from kosmos_jax.train import loss
+
+BINS = 256
+VOCAB = 300
+ANGLE_IDS = np.arange(40, 40 + BINS, dtype=np.int32)  # a_k is token 40 + k
+
+
+def _batch(targets):
+    """tokens [1, 1 + n]: <s> then the targets; every target counted."""
+    tokens = jnp.asarray([[1, *targets]], jnp.int32)
+    return tokens, jnp.ones_like(tokens, bool)
+
+
+def _peaked_logits(peaks, vocab=VOCAB):
+    """logits [1, 1 + n, V] whose position t puts most of its mass on peaks[t]."""
+    logits = np.zeros((1, len(peaks) + 1, vocab), np.float32)
+    for t, peak in enumerate(peaks):
+        logits[0, t, peak] = 8.0
+    return jnp.asarray(logits)
+
+
+def test_kernel_rows_are_wrapped_normalised_gaussians():
+    kernel = loss.circular_kernel(BINS, 8.0)
+    np.testing.assert_allclose(kernel.sum(axis=1), 1.0, rtol=1e-6)
+    assert kernel[0, 1] == kernel[0, BINS - 1] and kernel[0, 5] == kernel[10, 15]
+    assert kernel[0, 0] > kernel[0, 8] > kernel[0, 24] > kernel[0, 128]
+    assert kernel[0, 8] / kernel[0, 0] == pytest.approx(np.exp(-0.5), rel=1e-5)
+
+
+def test_a_narrow_kernel_is_the_plain_cross_entropy():
+    tokens, mask = _batch([7, 40 + 3, 40 + 200, 12])
+    logits = jax.random.normal(jax.random.key(0), (1, 5, VOCAB))
+    plain = loss.token_sums(logits, tokens, mask)["loss_sum"]
+    narrow = loss.smoothed_angle_sum(logits, tokens, mask, jnp.asarray(ANGLE_IDS), jnp.asarray(loss.circular_kernel(BINS, 1e-3)))
+    assert float(narrow) == pytest.approx(float(plain), rel=1e-6)
+
+
+def test_other_tokens_keep_the_plain_cross_entropy():
+    tokens, mask = _batch([7, 12, 39, 40 + BINS])  # 39 and 296 sit just outside the angle ids
+    logits = jax.random.normal(jax.random.key(1), (1, 5, VOCAB))
+    wide = loss.smoothed_angle_sum(logits, tokens, mask, jnp.asarray(ANGLE_IDS), jnp.asarray(loss.circular_kernel(BINS, 8.0)))
+    assert float(wide) == pytest.approx(float(loss.token_sums(logits, tokens, mask)["loss_sum"]), rel=1e-6)
+
+
+def test_a_near_miss_across_the_wrap_costs_less_than_a_far_one():
+    tokens, mask = _batch([40 + 0])
+    kernel, ids = jnp.asarray(loss.circular_kernel(BINS, 8.0)), jnp.asarray(ANGLE_IDS)
+    cost = {peak: float(loss.smoothed_angle_sum(_peaked_logits([40 + peak]), tokens, mask, ids, kernel))
+            for peak in (0, 3, 253, 128)}
+    assert cost[3] == pytest.approx(cost[253], rel=1e-6)
+    assert cost[0] < cost[3] < cost[128]
+    plain = {peak: float(loss.token_sums(_peaked_logits([40 + peak]), tokens, mask)["loss_sum"]) for peak in (3, 128)}
+    assert plain[3] == pytest.approx(plain[128], rel=1e-6)  # what the plain cross-entropy cannot tell apart
+
+
+def test_only_counted_targets_add():
+    tokens, mask = _batch([40 + 5, 40 + 9])
+    logits = jax.random.normal(jax.random.key(2), (1, 3, VOCAB))
+    kernel, ids = jnp.asarray(loss.circular_kernel(BINS, 8.0)), jnp.asarray(ANGLE_IDS)
+    both = float(loss.smoothed_angle_sum(logits, tokens, mask, ids, kernel))
+    first = float(loss.smoothed_angle_sum(logits, tokens, mask.at[0, 2].set(False), ids, kernel))
+    second = float(loss.smoothed_angle_sum(logits, tokens, mask.at[0, 1].set(False), ids, kernel))
+    assert both == pytest.approx(first + second, rel=1e-6) and 0 < first < both
+
+
+def test_the_step_refuses_smoothing_without_angle_tokens():
+    from kosmos_jax.train import step
+    with pytest.raises(ValueError, match="angle tokens"):
+        step.make_train_step(None, None, None, None, angle_smoothing=8.0, angle_ids=np.zeros((0,), np.int32))
+
+
+def test_the_trainer_finds_the_angle_tokens_in_bin_order():
+    from kosmos_jax.train.trainer import angle_token_ids
+
+    class Pieces:
+        def __init__(self, pieces):
+            self.pieces = pieces
+
+        def piece_texts(self):
+            return self.pieces
+
+    shuffled = [f"a_{k}" for k in np.random.default_rng(0).permutation(BINS)]
+    pieces = ["<s>", "x_3", *shuffled, "Grasp"]
+    ids = angle_token_ids(Pieces(pieces))
+    assert [pieces[i] for i in ids] == [f"a_{k}" for k in range(BINS)]
+    assert angle_token_ids(Pieces(["<s>", "x_3", "a", "_12"])).shape == (0,)  # digits: no angle tokens
