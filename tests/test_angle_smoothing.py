@@ -92,3 +92,22 @@ def test_the_trainer_finds_the_angle_tokens_in_bin_order():
     ids = angle_token_ids(Pieces(pieces))
     assert [pieces[i] for i in ids] == [f"a_{k}" for k in range(BINS)]
     assert angle_token_ids(Pieces(["<s>", "x_3", "a", "_12"])).shape == (0,)  # digits: no angle tokens
+
+
+def test_the_patch_angle_loss_reads_the_grasp_patch_and_its_angle_bin():
+    from kosmos_jax import geometry
+    side, width = 4, 8
+    rows = jax.random.normal(jax.random.key(3), (BINS, width))
+    theta = 0.4
+    tokens = np.zeros((1, 1 + side * side, width), np.float32)
+    cell = 2 * side + 1  # the grasp below sits in column 1, row 2 of the 4x4 grid
+    tokens[0, 1 + cell] = 5.0 * np.asarray(rows[int(geometry.encode_angle(theta))])
+    grasp = jnp.asarray([[1.5 * 28, 2.5 * 28, 20.0, 10.0, theta]], jnp.float32)  # a 112 px image
+    mask = jnp.asarray([[False, True, True, False]])
+    at_patch = float(loss.patch_angle_sum(jnp.asarray(tokens), rows, grasp, 112, mask))
+    elsewhere = float(loss.patch_angle_sum(jnp.asarray(np.roll(tokens, 1, axis=1)), rows, grasp, 112, mask))
+    turned = float(loss.patch_angle_sum(jnp.asarray(tokens), rows, grasp.at[0, 4].set(theta + 1.2), 112, mask))
+    assert at_patch < elsewhere and at_patch < turned
+    uniform = float(loss.patch_angle_sum(jnp.zeros_like(tokens), rows, grasp, 112, mask))
+    assert uniform == pytest.approx(2 * np.log(BINS), rel=1e-6)  # two loss tokens, a uniform guess each
+    assert float(loss.patch_angle_sum(jnp.zeros_like(tokens), rows, grasp.at[0, 0].set(jnp.nan), 112, mask)) == 0.0

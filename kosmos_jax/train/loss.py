@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from kosmos_jax import geometry
 from kosmos_jax.models.connector import cell_index, grid_side
 
 
@@ -68,10 +69,30 @@ def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_m
     return -jnp.sum(picked.mean(axis=(1, 2)) * weight)
 
 
+def patch_angle_sum(patch_tokens: jax.Array, angle_rows: jax.Array, grasp: jax.Array, image_side: int,
+                    loss_mask: jax.Array) -> jax.Array:
+    """The patch-angle loss as a sum: the image token of the patch that holds the target grasp's centre
+    (patch_tokens [B, 1 + patches, D], the class token first, as the connector projects them) scored
+    against each angle token's row (angle_rows [bins, D], bin order) by dot product, and the
+    cross-entropy of those scores against the grasp's angle bin. It asks the vision tower for the
+    orientation at the grasp's patch in the form the decoder answers with; weighted by each example's
+    loss tokens as `pointing_sum` is."""
+    side = grid_side(patch_tokens.shape[1] - 1)
+    cell = 1 + cell_index(grasp[:, :2] / image_side, side)
+    picked = jnp.take_along_axis(patch_tokens, cell[:, None, None], axis=1)[:, 0].astype(jnp.float32)
+    log_p = jax.nn.log_softmax(picked @ angle_rows.astype(jnp.float32).T, axis=-1)
+    target = geometry.encode_angle(jnp.nan_to_num(grasp[:, 4]))
+    nll = -jnp.take_along_axis(log_p, target[:, None], axis=-1)[:, 0]
+    weight = jnp.where(jnp.isfinite(grasp).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
+    return jnp.sum(nll * weight)
+
+
 def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """Loss and accuracy per counted token (0 for a batch without any); the pointing loss when summed."""
     count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
     out = {"loss": sums["loss_sum"] / count, "accuracy": sums["correct"] / count}
     if "pointing_sum" in sums:
         out["pointing"] = sums["pointing_sum"] / count
+    if "patch_angle_sum" in sums:
+        out["patch_angle"] = sums["patch_angle_sum"] / count
     return out

@@ -33,7 +33,7 @@ from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
-from kosmos_jax.train.loss import circular_kernel, means, pointing_sum, smoothed_angle_sum, token_sums
+from kosmos_jax.train.loss import circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
 
@@ -97,7 +97,7 @@ def _all_finite(tree) -> jax.Array:
 
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
                     mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
-                    angle_ids=None, angle_smoothing: float = 0.0) -> Callable:
+                    angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
@@ -106,13 +106,16 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     pointing cross-entropy (`loss.pointing_sum`), added to the loss with that weight. With
     `angle_smoothing` > 0 (a width in angle bins) the gradient is that of circular smooth labels on the
     angle tokens (`loss.smoothed_angle_sum`; angle_ids: each bin's token id), while `loss` stays the
-    plain cross-entropy, comparable with runs without it.
+    plain cross-entropy, comparable with runs without it. With `patch_angle_loss` > 0, also
+    patch_angle: `loss.patch_angle_sum` of the connector's projected image tokens against the angle
+    tokens' embedding rows (held fixed for it), added to the loss with that weight.
     """
-    if angle_smoothing and (angle_ids is None or len(angle_ids) == 0):
-        raise ValueError("angle_smoothing needs the angle tokens' ids (a vocabulary with value tokens: "
-                         "numbers=values and the angle code)")
+    for name, weight in (("angle_smoothing", angle_smoothing), ("patch_angle_loss", patch_angle_loss)):
+        if weight and (angle_ids is None or len(angle_ids) == 0):
+            raise ValueError(f"{name} needs the angle tokens' ids (a vocabulary with value tokens: "
+                             "numbers=values and the angle code)")
     kernel = jnp.asarray(circular_kernel(len(angle_ids), angle_smoothing)) if angle_smoothing else None
-    angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing else None
+    angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing or patch_angle_loss else None
     graphdef, _, rest = split_model(abstract_model(model_config))
     state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
 
@@ -124,11 +127,17 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         objective = sums["loss_sum"]
         if angle_smoothing:
             objective = smoothed_angle_sum(scores, batch["tokens"], batch["loss_mask"], angle_ids, kernel)
-        if not pointing_loss:
-            return objective, sums
-        log_probs = model.image_to_text_projection.pointing_log_probs(features)
-        sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], batch["image"].shape[1], batch["loss_mask"])
-        return objective + pointing_loss * sums["pointing_sum"], sums
+        side = batch["image"].shape[1]
+        if pointing_loss:
+            log_probs = model.image_to_text_projection.pointing_log_probs(features)
+            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"])
+            objective = objective + pointing_loss * sums["pointing_sum"]
+        if patch_angle_loss:
+            rows = jax.lax.stop_gradient(model.text_model.model.embed_tokens.embedding[...][angle_ids])
+            patch_tokens = model.image_to_text_projection.dense(features)
+            sums["patch_angle_sum"] = patch_angle_sum(patch_tokens, rows, batch["grasp"], side, batch["loss_mask"])
+            objective = objective + patch_angle_loss * sums["patch_angle_sum"]
+        return objective, sums
 
     def accumulate(params, step, parts):
         def add(carry, indexed):
@@ -141,6 +150,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
                      "tokens": jnp.zeros((), jnp.int32)}
         if pointing_loss:
             zero_sums["pointing_sum"] = jnp.zeros((), jnp.float32)
+        if patch_angle_loss:
+            zero_sums["patch_angle_sum"] = jnp.zeros((), jnp.float32)
         zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
         (grads, sums), _ = jax.lax.scan(add, zero, (jnp.arange(microbatches), parts))
         return grads, sums

@@ -177,7 +177,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
                                  seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0),
                                  angle_ids=angle_token_ids(tokenizer),
-                                 angle_smoothing=config.train.get("angle_smoothing", 0.0))
+                                 angle_smoothing=config.train.get("angle_smoothing", 0.0),
+                                 patch_angle_loss=config.train.get("patch_angle_loss", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
@@ -195,7 +196,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                 "examples_per_s": batch_size / step_s,
                 "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
                 "data_wait_fraction": min(1.0, waited / step_s),
-                **({"pointing": metrics["pointing"]} if "pointing" in metrics else {})}
+                **{name: metrics[name] for name in ("pointing", "patch_angle") if name in metrics}}
 
     def split_record(name, step, state, with_grasps: bool, log: MetricsLog) -> dict:
         """Loss and token accuracy on split `name`; with the grasp accuracy of decoded answers if asked."""
