@@ -69,6 +69,11 @@ def test_pointing_sum_is_minus_the_log_probability_of_the_grasp_patch_weighted_b
     for row, (patch, tokens) in enumerate([(2, 2), (1, 1)]):  # row-major patch index, its loss tokens
         expected -= tokens * float(log_probs[row, :, :, 1 + patch].mean())
     assert float(loss.pointing_sum(log_probs, grasp, STORED, loss_mask)) == pytest.approx(expected, rel=1e-6)
+    first_two = 0.0  # pointing only the first two latent queries: the third may look anywhere
+    for row, (patch, tokens) in enumerate([(2, 2), (1, 1)]):
+        first_two -= tokens * float(log_probs[row, :, :2, 1 + patch].mean())
+    assert float(loss.pointing_sum(log_probs, grasp, STORED, loss_mask, queries=2)) == pytest.approx(first_two, rel=1e-6)
+    assert first_two != pytest.approx(expected, rel=1e-3)
 
 
 def _squares(count, seed):

@@ -57,12 +57,16 @@ def smoothed_angle_sum(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Arra
     return jnp.sum(jnp.where(counted, jnp.where(target_bin >= 0, soft, hard), 0.0))
 
 
-def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:
+def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array,
+                 queries: int = 0) -> jax.Array:
     """The connector's pointing loss as a sum: for each example, the cross-entropy of every head of every
     latent query against the patch that holds the target grasp's centre (log_probs [B, H, Q, 1 + patches
     + Q], keys in the connector's order, the class token first), weighted by the example's loss tokens so
-    that, divided by the batch's token count like the text loss, it is a per-token mean."""
+    that, divided by the batch's token count like the text loss, it is a per-token mean. `queries` > 0
+    points only the first that many latent queries and leaves the others free to look elsewhere."""
     side = grid_side(log_probs.shape[-1] - 1 - log_probs.shape[2])
+    if queries:
+        log_probs = log_probs[:, :, :queries]
     target = 1 + cell_index(grasp[:, :2] / image_side, side)
     picked = jnp.take_along_axis(log_probs, target[:, None, None, None], axis=-1)[..., 0]
     weight = jnp.where(jnp.isfinite(grasp[:, :2]).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)

@@ -97,13 +97,15 @@ def _all_finite(tree) -> jax.Array:
 
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
                     mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
-                    angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0) -> Callable:
+                    angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0,
+                    pointing_queries: int = 0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
     (of this update), grad_norm (before clipping), update_norm, param_norm (after), tokens (loss
     tokens of the global batch), finite; with `pointing_loss` > 0, also pointing: the connector's
-    pointing cross-entropy (`loss.pointing_sum`), added to the loss with that weight. With
+    pointing cross-entropy (`loss.pointing_sum`, of the first `pointing_queries` latent queries when
+    that is > 0), added to the loss with that weight. With
     `angle_smoothing` > 0 (a width in angle bins) the gradient is that of circular smooth labels on the
     angle tokens (`loss.smoothed_angle_sum`; angle_ids: each bin's token id), while `loss` stays the
     plain cross-entropy, comparable with runs without it. With `patch_angle_loss` > 0, also
@@ -130,7 +132,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         side = batch["image"].shape[1]
         if pointing_loss:
             log_probs = model.image_to_text_projection.pointing_log_probs(features)
-            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"])
+            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"], pointing_queries)
             objective = objective + pointing_loss * sums["pointing_sum"]
         if patch_angle_loss:
             rows = jax.lax.stop_gradient(model.text_model.model.embed_tokens.embedding[...][angle_ids])

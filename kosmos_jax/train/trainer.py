@@ -178,7 +178,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                  seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0),
                                  angle_ids=angle_token_ids(tokenizer),
                                  angle_smoothing=config.train.get("angle_smoothing", 0.0),
-                                 patch_angle_loss=config.train.get("patch_angle_loss", 0.0))
+                                 patch_angle_loss=config.train.get("patch_angle_loss", 0.0),
+                                 pointing_queries=config.train.get("pointing_queries", 0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
