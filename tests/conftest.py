@@ -47,3 +47,16 @@ def dead_pid() -> int:
     """The pid of a process that has already exited (for staging folders of killed writers)."""
     finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     return int(finished.stdout)
+
+
+@pytest.fixture(scope="session")
+def synthetic_15(tmp_path_factory) -> pathlib.Path:
+    """15 synthetic Cornell-format photos of seed 0 (5 objects: enough for 5 object-wise folds), made
+    once a session for the modules that build datasets from them."""
+    import shutil
+
+    from kosmos_jax.data.synthetic import scenes
+    root = tmp_path_factory.mktemp("synthetic_15")
+    shutil.rmtree(root)
+    scenes.write_dataset(root, photos=15, seed=0)
+    return root

@@ -15,7 +15,6 @@ import pytest
 
 from kosmos_jax import geometry, publish
 from kosmos_jax.data import cornell, splits
-from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import build as build_module
 from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax.dataset import images as image_table
@@ -29,11 +28,8 @@ PHOTOS = 15  # 5 objects: enough for 5 object-wise folds
 
 
 @pytest.fixture(scope="session")
-def source(tmp_path_factory):
-    root = tmp_path_factory.mktemp("synthetic")
-    shutil.rmtree(root)
-    scenes.write_dataset(root, photos=PHOTOS, seed=0)
-    return root
+def source(synthetic_15):
+    return synthetic_15
 
 
 @pytest.fixture(scope="module")

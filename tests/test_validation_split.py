@@ -6,7 +6,6 @@ tiny run whose periodic evaluation reads it, evaluated with `--split=validation`
 import json
 import os
 import pathlib
-import shutil
 import subprocess
 import sys
 
@@ -14,7 +13,6 @@ import numpy as np
 import pytest
 
 from kosmos_jax.data import cornell, splits
-from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import build as build_module
 from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax.dataset import inputs
@@ -24,15 +22,11 @@ from kosmos_jax.dataset.checks import BuildCheckError, check_separation
 from kosmos_jax.dataset.tfds_builders import open_splits
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-PHOTOS = 15  # 5 objects: enough for 5 object-wise folds
 
 
 @pytest.fixture(scope="session")
-def validation_source(tmp_path_factory):
-    root = tmp_path_factory.mktemp("validation_synthetic")
-    shutil.rmtree(root)
-    scenes.write_dataset(root, photos=PHOTOS, seed=0)
-    return root
+def validation_source(synthetic_15):
+    return synthetic_15
 
 
 @pytest.fixture(scope="session")
