@@ -77,21 +77,13 @@ def test_the_step_refuses_smoothing_without_angle_tokens():
         step.make_train_step(None, None, None, None, angle_smoothing=8.0, angle_ids=np.zeros((0,), np.int32))
 
 
-def test_the_trainer_finds_the_angle_tokens_in_bin_order():
-    from kosmos_jax.train.trainer import angle_token_ids
-
-    class Pieces:
-        def __init__(self, pieces):
-            self.pieces = pieces
-
-        def piece_texts(self):
-            return self.pieces
-
+def test_the_angle_tokens_are_found_in_bin_order():
+    from kosmos_jax.models.value_embeddings import angle_token_ids
     shuffled = [f"a_{k}" for k in np.random.default_rng(0).permutation(BINS)]
     pieces = ["<s>", "x_3", *shuffled, "Grasp"]
-    ids = angle_token_ids(Pieces(pieces))
+    ids = angle_token_ids(pieces)
     assert [pieces[i] for i in ids] == [f"a_{k}" for k in range(BINS)]
-    assert angle_token_ids(Pieces(["<s>", "x_3", "a", "_12"])).shape == (0,)  # digits: no angle tokens
+    assert angle_token_ids(["<s>", "x_3", "a", "_12"]).shape == (0,)  # digits: no angle tokens
 
 
 def test_the_patch_angle_loss_reads_the_grasp_patch_and_its_angle_bin():

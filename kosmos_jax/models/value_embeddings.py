@@ -52,6 +52,16 @@ def value_rows(pieces: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             for family, rows in found.items()}
 
 
+def angle_token_ids(pieces: list[str]) -> np.ndarray:
+    """The token ids of a_0 .. a_255 in bin order among `pieces`, or an empty array when the vocabulary
+    has no full set of angle value tokens."""
+    rows = value_rows(pieces).get("a")
+    if rows is None or len(rows[0]) != geometry.ANGLE_BINS:
+        return np.zeros((0,), np.int32)
+    ids, phases = rows
+    return ids[np.argsort(phases)].astype(np.int32)
+
+
 def with_value_code(embedding: np.ndarray, pieces: list[str], amplitude: float) -> np.ndarray:
     """embedding [V, D] with `amplitude` times each value token's code added to its row."""
     rows = value_rows(pieces)

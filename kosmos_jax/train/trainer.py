@@ -26,7 +26,6 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from kosmos_jax import geometry
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models import value_embeddings, weights
@@ -155,15 +154,6 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
             "examples_per_process": examples}
 
 
-def angle_token_ids(tokenizer) -> np.ndarray:
-    """The token ids of a_0 .. a_255 in bin order, or an empty array when the vocabulary has no value tokens."""
-    rows = value_embeddings.value_rows(tokenizer.piece_texts()).get("a")
-    if rows is None or len(rows[0]) != geometry.ANGLE_BINS:
-        return np.zeros((0,), np.int32)
-    ids, phases = rows
-    return ids[np.argsort(phases)].astype(np.int32)
-
-
 def kosmos_task(config, mesh, tx, schedule) -> Task:
     """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
     dataset = prepare_data(config.data)
@@ -176,7 +166,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                      jax.process_index(), jax.process_count())
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
                                  seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0),
-                                 angle_ids=angle_token_ids(tokenizer),
+                                 angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()),
                                  angle_smoothing=config.train.get("angle_smoothing", 0.0),
                                  patch_angle_loss=config.train.get("patch_angle_loss", 0.0),
                                  pointing_queries=config.train.get("pointing_queries", 0))
