@@ -5,7 +5,8 @@ import pytest
 
 from configs import kosmos_e
 from kosmos_jax.models import config as model_configs
-from kosmos_jax.models.value_embeddings import VALUE_TOKEN, value_code, value_phases, value_rows, with_value_code
+from kosmos_jax.models.value_embeddings import (VALUE_TOKEN, angle_harmonic_width, value_code, value_phases, value_rows,
+                                                with_value_code)
 from kosmos_jax.text.tokenizer import train_tokenizer
 from kosmos_jax.train import trainer
 
@@ -27,6 +28,23 @@ def test_angle_codes_wrap_round():
     codes = value_code(value_phases("a", np.array([0.0, 1.0, 128.0, 255.0])), 64)
     assert codes[0] @ codes[3] == pytest.approx(codes[0] @ codes[1], rel=1e-6)  # a_255 is a_0's neighbour
     assert abs(codes[0] @ codes[2]) < 0.1
+
+
+def test_a_wide_angle_kernel_keeps_bins_alike_over_its_width_and_leaves_other_families_alone():
+    phases = value_phases("a", np.arange(256.0))
+    sharp, wide = value_code(phases, 128), value_code(phases, 128, angle_harmonic_width(20.0))
+    np.testing.assert_allclose(np.linalg.norm(wide, axis=1), 1.0, rtol=1e-6)
+    assert sharp[0] @ sharp[10] < 0.1 < 0.8 < wide[0] @ wide[10]  # 10 bins: unlike by default, alike when wide
+    assert 0.3 < wide[0] @ wide[20] < 0.7 and wide[0] @ wide[128] < 0  # about 20 bins; a right angle apart
+    pieces = ["", "x_10", "a_0", "a_10"]
+    table = np.zeros((4, 128), np.float32)
+    default, widened = with_value_code(table, pieces, 1.0), with_value_code(table, pieces, 1.0, angle_kernel_bins=20.0)
+    np.testing.assert_array_equal(default[1], widened[1])  # x keeps its code
+    assert default[2] @ default[3] < 0.1 < 0.8 < widened[2] @ widened[3]
+    with pytest.raises(ValueError, match="angle_kernel_bins"):
+        with_value_code(table, pieces, 1.0, angle_kernel_bins=-1.0)
+    with pytest.raises(ValueError, match="harmonic width"):
+        value_code(phases, 128, 0.0)
 
 
 def test_value_rows_finds_every_value_token_and_nothing_else():

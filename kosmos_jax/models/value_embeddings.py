@@ -20,14 +20,18 @@ from kosmos_jax import geometry
 VALUE_TOKEN = re.compile(r"^([xywha])_(-?\d+)$")
 
 
-def value_code(phases: np.ndarray, width: int) -> np.ndarray:
+def value_code(phases: np.ndarray, width: int, harmonic_width: float | None = None) -> np.ndarray:
     """[n] phases (radians) -> [n, width] unit-norm rows: sin and cos of harmonics 1..width/2 of
-    each phase, weighted by a Gaussian in the harmonic (width/8 wide) so that the codes' dot product
-    falls smoothly with the phase difference."""
+    each phase, weighted by a Gaussian in the harmonic (`harmonic_width` wide, width/8 unless given)
+    so that the codes' dot product falls smoothly with the phase difference, over about
+    sqrt(2) / harmonic_width radians."""
     if width % 2:
         raise ValueError(f"a value code needs an even width, got {width}")
+    harmonic_width = width / 8 if harmonic_width is None else harmonic_width
+    if harmonic_width <= 0:
+        raise ValueError(f"a value code's harmonic width must be positive, got {harmonic_width}")
     harmonics = np.arange(1, width // 2 + 1)
-    weights = np.exp(-0.5 * (harmonics / (width / 8)) ** 2)
+    weights = np.exp(-0.5 * (harmonics / harmonic_width) ** 2)
     angles = np.asarray(phases, np.float64)[:, None] * harmonics
     code = np.concatenate([np.sin(angles) * weights, np.cos(angles) * weights], axis=1)
     return code / np.linalg.norm(code, axis=1, keepdims=True)
@@ -62,13 +66,24 @@ def angle_token_ids(pieces: list[str]) -> np.ndarray:
     return ids[np.argsort(phases)].astype(np.int32)
 
 
-def with_value_code(embedding: np.ndarray, pieces: list[str], amplitude: float) -> np.ndarray:
-    """embedding [V, D] with `amplitude` times each value token's code added to its row."""
+def angle_harmonic_width(kernel_bins: float) -> float:
+    """The harmonic width whose code kernel is about `kernel_bins` angle bins wide."""
+    return geometry.ANGLE_BINS * np.sqrt(2) / (2 * np.pi * kernel_bins)
+
+
+def with_value_code(embedding: np.ndarray, pieces: list[str], amplitude: float, angle_kernel_bins: float = 0.0) -> np.ndarray:
+    """embedding [V, D] with `amplitude` times each value token's code added to its row. With
+    `angle_kernel_bins` > 0 the angle tokens' codes are that many bins alike (about; the default
+    kernel, width/8 harmonics, is 2 to 3 bins at width 128): a wide kernel makes the cross-entropy's
+    pull on an angle answer mostly its low harmonics, the coarse orientation."""
     rows = value_rows(pieces)
     if not rows:
         raise ValueError("model.value_token_code needs value tokens in the vocabulary "
                          "(build the data with --config.data.build.numbers=values)")
     out = np.array(embedding, copy=True)
-    for ids, phases in rows.values():
-        out[ids] += amplitude * value_code(phases, embedding.shape[1]).astype(out.dtype)
+    if angle_kernel_bins < 0:
+        raise ValueError(f"angle_kernel_bins must be >= 0, got {angle_kernel_bins}")
+    for family, (ids, phases) in rows.items():
+        harmonic_width = angle_harmonic_width(angle_kernel_bins) if family == "a" and angle_kernel_bins else None
+        out[ids] += amplitude * value_code(phases, embedding.shape[1], harmonic_width).astype(out.dtype)
     return out

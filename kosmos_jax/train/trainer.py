@@ -81,7 +81,8 @@ def initial_params(config, model_cfg: model_configs.Kosmos2Config, tokenizer):
         if value_code:
             embedding = model.text_model.model.embed_tokens.embedding
             embedding.set_value(jnp.asarray(value_embeddings.with_value_code(
-                np.asarray(embedding.get_value()), tokenizer.piece_texts(), value_code)))
+                np.asarray(embedding.get_value()), tokenizer.piece_texts(), value_code,
+                config.model.get("angle_code_bins", 0.0))))
         return split_model(model)[1]
     if value_code:
         raise ValueError("model.value_token_code sets the start of embeddings trained from scratch; "
