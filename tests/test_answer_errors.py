@@ -1,6 +1,7 @@
 """evaluate.answer_errors: centre distances and angle errors of decoded answers against their targets;
 evaluate.part_oracles: the answers scored again with the centre or the angle from the ground truth."""
 
+import json
 import math
 
 import numpy as np
@@ -56,6 +57,15 @@ def test_a_run_without_answers_is_told_how_to_make_them(tmp_path):
         errors_lib.read_answers(tmp_path, 800)
     with pytest.raises(SystemExit, match="not a training run's workdir"):
         errors_lib.main(["--workdir", str(tmp_path)])
+
+
+def test_scored_reads_the_answers_evaluate_wrote_for_another_source(tmp_path):
+    folder = tmp_path / "eval" / "800" / "cornell-synthetic-60-seed7"
+    folder.mkdir(parents=True)
+    (folder / "answers.jsonl").write_text(json.dumps(angle("a_0", "a_64")) + "\n")
+    assert errors_lib.read_answers(tmp_path, 800, "cornell-synthetic-60-seed7") == [angle("a_0", "a_64")]
+    with pytest.raises(RunError, match="--cornell="):
+        errors_lib.read_answers(tmp_path, 800, "cornell-elsewhere")
 
 
 # -- part_oracles: the answers scored again with one half from the ground truth ----------------------

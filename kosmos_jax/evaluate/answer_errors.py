@@ -1,6 +1,6 @@
 """How far a run's decoded answers fall from their targets: centre distance and angle error.
 
-    python -m kosmos_jax.evaluate.answer_errors --workdir=runs/demo [--step=N] [--json]
+    python -m kosmos_jax.evaluate.answer_errors --workdir=runs/demo [--step=N] [--scored=FOLDER] [--json]
 
 Reads WORKDIR/eval/STEP/answers.jsonl (run `python -m kosmos_jax.evaluate --workdir=...` first).
 Each answer is compared with its example's own target grasp (one ground truth of the view, the one
@@ -57,29 +57,36 @@ def error_summary(rows: list[dict], config: FormatConfig) -> dict:
             "examples": len(rows), "distinct_answers": len({row["answer"] for row in rows})}
 
 
-def read_answers(workdir: pathlib.Path, step: int) -> list[dict]:
-    path = workdir / "eval" / str(step) / "answers.jsonl"
+def read_answers(workdir: pathlib.Path, step: int, scored: str = "") -> list[dict]:
+    """The answers of `evaluate` at `step`: of the run's own test split, or of the folder `scored` names
+    under eval/STEP (e.g. cornell-synthetic-60-seed7, written by evaluate --cornell)."""
+    path = workdir / "eval" / str(step) / scored / "answers.jsonl"
     if not path.is_file():
-        raise RunError(f"no {path}: score the run first with python -m kosmos_jax.evaluate --workdir={workdir} --step={step}")
+        source = f" --cornell=..." if scored else ""
+        raise RunError(f"no {path}: score the run first with python -m kosmos_jax.evaluate --workdir={workdir} "
+                       f"--step={step}{source}")
     return [json.loads(line) for line in path.read_text().splitlines() if line]
 
 
-def scored_run_arguments(module: str, doc: str, argv=None) -> argparse.Namespace:
+def scored_run_arguments(module: str, doc: str, argv=None, scored: bool = False) -> argparse.Namespace:
     """--workdir, --step and --json of a command that reads a scored run's answers."""
     parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.splitlines()[0])
     parser.add_argument("--workdir", required=True, help="the training run's folder")
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
+    if scored:
+        parser.add_argument("--scored", default="", help="the answers of eval/STEP/SCORED (what evaluate --cornell "
+                            "wrote, e.g. cornell-synthetic-60-seed7) instead of the run's test split")
     return parser.parse_args(argv)
 
 
 def main(argv=None) -> None:
-    args = scored_run_arguments("kosmos_jax.evaluate.answer_errors", __doc__, argv)
+    args = scored_run_arguments("kosmos_jax.evaluate.answer_errors", __doc__, argv, scored=True)
     workdir = pathlib.Path(args.workdir)
     try:
         config = FormatConfig(**read_description(workdir)["data_identity"]["format"])
         step = chosen_step(workdir, args.step)
-        summary = {"step": step, **error_summary(read_answers(workdir, step), config)}
+        summary = {"step": step, **error_summary(read_answers(workdir, step, args.scored), config)}
     except RunError as error:
         raise SystemExit(f"error: {error}") from None
     if args.json:
