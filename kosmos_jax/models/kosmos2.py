@@ -90,6 +90,11 @@ def abstract_model(cfg: Kosmos2Config) -> Kosmos2:
         return nnx.eval_shape(lambda: Kosmos2(cfg, nnx.Rngs(0)))
 
 
+def split_model(model: nnx.Module) -> tuple[nnx.GraphDef, nnx.State, nnx.State]:
+    """(graph definition, parameters, the rest: the dropout streams' keys and counts)."""
+    return nnx.split(model, nnx.Param, ...)
+
+
 def param_count(model_or_state) -> int:
     state = nnx.state(model_or_state, nnx.Param) if isinstance(model_or_state, nnx.Module) else model_or_state
     return int(sum(x.size for x in jax.tree.leaves(state)))

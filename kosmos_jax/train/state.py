@@ -16,7 +16,7 @@ from flax import nnx
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.kosmos2 import abstract_model
+from kosmos_jax.models.kosmos2 import abstract_model, split_model  # noqa: F401  (split_model: used from here)
 from kosmos_jax.models.sharding import param_shardings
 
 
@@ -29,11 +29,6 @@ class TrainState(NamedTuple):
 
 def _is_variable(x) -> bool:
     return isinstance(x, nnx.Variable)
-
-
-def split_model(model: nnx.Module) -> tuple[nnx.GraphDef, nnx.State, nnx.State]:
-    """(graph definition, parameters, the rest: the dropout streams' keys and counts)."""
-    return nnx.split(model, nnx.Param, ...)
 
 
 def _fresh_state(params: nnx.State, tx: optax.GradientTransformation) -> TrainState:
