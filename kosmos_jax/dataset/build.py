@@ -57,6 +57,7 @@ from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax.dataset import images as image_table
 from kosmos_jax.dataset import samples as sample_stage
 from kosmos_jax.dataset import tfds_builders
+from kosmos_jax.dataset.built import STATS_FILE
 from kosmos_jax.dataset.checks import BuildCheckError, check_example, check_separation, check_written, spot_numbers
 from kosmos_jax.dataset.inputs import RULE_KINDS, WordSource, object_words, read_photos, word_source, words_unknown
 from kosmos_jax.dataset.views import augment_config, count_views, make_views
@@ -64,7 +65,6 @@ from kosmos_jax.text import layout
 from kosmos_jax.text.formatter import FormatConfig, format_sample
 from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
 
-STATS_FILE = "build_stats.json"
 # BuildConfig fields that say where and whether to write, not what: left out of the identity
 NOT_DATA = ("out", "overwrite")
 # BuildConfig fields naming files read: in the identity by absolute path and content digest

@@ -9,8 +9,6 @@ batches of its own rows of every global batch (grain shards by process).
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import pathlib
 import sys
 
@@ -18,37 +16,11 @@ import numpy as np
 
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import build as build_lib
-from kosmos_jax.dataset import pipeline, tfds_builders
-from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
+from kosmos_jax.dataset import pipeline
+from kosmos_jax.dataset.built import Dataset, open_dataset
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SHARED_CORNELL = REPO.parent / "shared" / "data" / "cornell"
-
-
-@dataclasses.dataclass(frozen=True)
-class Dataset:
-    """A built dataset: its folder, build statistics and tokenizer."""
-
-    dir: pathlib.Path
-    stats: dict
-
-    @property
-    def identity(self) -> dict:
-        return self.stats["identity"]
-
-    @property
-    def tokenizer_path(self) -> pathlib.Path:
-        path = pathlib.Path(self.stats["tokenizer"].get("path") or self.dir / "tokenizer.model")
-        if not path.is_file():
-            raise FileNotFoundError(f"the tokenizer of dataset {self.dir} is missing ({path})")
-        return path
-
-    def tokenizer(self) -> Tokenizer:
-        info = self.stats["tokenizer"]
-        return load_tokenizer(self.tokenizer_path, scheme=info["scheme"], numbers=info["numbers"])
-
-    def splits(self) -> dict:
-        return tfds_builders.open_splits(self.dir)
 
 
 def source_folder(data_config) -> pathlib.Path:
@@ -77,15 +49,6 @@ def build_config(data_config) -> build_lib.BuildConfig:
             path = pathlib.Path(settings[name])
             settings[name] = str(path if path.is_absolute() or path.exists() else REPO / path)
     return build_lib.BuildConfig(source=str(source_folder(data_config)), out=str(data_config.root), **settings)
-
-
-def open_dataset(folder) -> Dataset:
-    folder = pathlib.Path(folder)
-    stats_file = folder / build_lib.STATS_FILE
-    if not stats_file.is_file():
-        raise FileNotFoundError(f"{folder} is not a built dataset (no {build_lib.STATS_FILE}); "
-                                "build one with python -m kosmos_jax.dataset.build or leave config.data.dir empty")
-    return Dataset(folder, json.loads(stats_file.read_text()))
 
 
 def prepare(data_config) -> Dataset:
