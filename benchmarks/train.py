@@ -28,12 +28,12 @@ from flax import nnx
 from timing import best_time, matmul_peak  # benchmarks/timing.py, beside this script
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.kosmos2 import build
-from kosmos_jax.train.checkpoint import Checkpoints
 from kosmos_jax.train.mesh import batch_sharding, make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import init_train_state, split_model
 from kosmos_jax.train.step import logits as model_logits
 from kosmos_jax.train.step import make_train_step
+from kosmos_jax.workdir.checkpoints import Checkpoints
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "configs"))

@@ -33,7 +33,7 @@ from kosmos_jax.data import cornell
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import views
 from kosmos_jax.evaluate.__main__ import evaluate, parse_args, write
-from kosmos_jax.evaluate.run import open_run
+from kosmos_jax.workdir.run import open_run
 from kosmos_jax.evaluation import baselines, scoring
 from kosmos_jax.evaluation.cornell_examples import cornell_examples
 from kosmos_jax.experiments import no_learning, runner, spec

@@ -19,7 +19,6 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.evaluate.__main__ import main
-from kosmos_jax.evaluate.run import open_run
 from kosmos_jax.evaluation.instructions import combine, group_instructions
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.evaluation.tally import distinct, markdown, successes
@@ -29,6 +28,7 @@ from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.mesh import make_mesh
 from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.train.state import split_model
+from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 

@@ -21,6 +21,7 @@ LAYERS = (
     ("dataset",),
     ("models", "baselines"),
     ("evaluation",),  # above train: the trainer scores decoded grasps; evaluation never imports train
+    ("workdir",),  # the run layer: a workdir's files, model, checkpoints (params-only restore), export
     ("train",),
     ("evaluate",),
     ("experiments", "predict"),  # experiments: train + evaluate per fold; predict: one grasp from a trained run

@@ -1,8 +1,9 @@
 """GraspPredictor on a tiny run the real trainer wrote (two steps of `configs/kosmos_e.py:tiny`):
 a Grasp from a path or an array, in the photo's pixels; batches padded to fixed sizes (compiled
-once each); angle and NON instructions; a pretrained folder of the same weights predicts the same;
-the photo <-> view mapping under a known transform (model-free); every bad input's one clear error;
-the overlay's red rectangle; `python -m kosmos_jax.predict --json` and `evaluate --overlays`."""
+once each); angle and NON instructions; the run exported as a pretrained folder (workdir.export)
+predicts the same; the photo <-> view mapping under a known transform (model-free); every bad
+input's one clear error; the overlay's red rectangle; `python -m kosmos_jax.predict --json` and
+`evaluate --overlays`."""
 
 import json
 import math
@@ -16,22 +17,18 @@ import cv2
 import jax
 import numpy as np
 import pytest
-from flax import nnx
 
 from kosmos_jax import geometry
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.dataset.views import evaluation_views
-from kosmos_jax.evaluate.run import open_run
-from kosmos_jax.evaluation.decoding import fixed_streams
 from kosmos_jax.evaluation.overlay import overlay, write_png
-from kosmos_jax.models import weights
-from kosmos_jax.models.kosmos2 import abstract_model
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.predict import (GraspPredictor, ImageError, ImageWarning, InstructionError, PredictError,
                                 RunFolderError)
 from kosmos_jax.predict.framing import frame
 from kosmos_jax.predict.images import load_image
-from kosmos_jax.train.mesh import make_mesh
-from kosmos_jax.train.state import split_model
+from kosmos_jax.workdir.export import export_pretrained
+from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -182,12 +179,10 @@ def test_a_workdir_without_checkpoint_or_tokenizer_is_named(workdir, tmp_path):
 
 def test_a_pretrained_folder_of_the_same_weights_predicts_the_same(predictor, workdir, tmp_path, photo):
     run = open_run(workdir)
-    graphdef, _, rest = split_model(abstract_model(run.model_config))
-    params = jax.tree.map(np.asarray, predictor.params)
-    weights.save_pretrained(nnx.merge(graphdef, params, fixed_streams(rest)), tmp_path / "exported")
-    pretrained = GraspPredictor.from_pretrained(tmp_path / "exported", workdir / "tokenizer.model", scheme="native",
-                                                format_config=run.format_config, grasp_size=predictor.grasp_size,
-                                                mesh=one_device())
+    assert export_pretrained(workdir, tmp_path / "exported") == 2  # the run layer's export: params alone, newest step
+    pretrained = GraspPredictor.from_pretrained(tmp_path / "exported", tmp_path / "exported" / "tokenizer.model",
+                                                scheme="native", format_config=run.format_config,
+                                                grasp_size=predictor.grasp_size, mesh=one_device())
     assert pretrained.predict(photo[1], "Grasp the red mug.") == predictor.predict(photo[1], "Grasp the red mug.")
     with pytest.raises(RunFolderError, match="scheme='native'"):  # the project's tokenizer read as KOSMOS-2's
         GraspPredictor.from_pretrained(tmp_path / "exported", workdir / "tokenizer.model", scheme="fairseq")

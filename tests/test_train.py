@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train.checkpoint import Checkpoints
 from kosmos_jax.train.metrics_log import read_metrics, train_losses
+from kosmos_jax.workdir.checkpoints import Checkpoints
 
 pytestmark = pytest.mark.xdist_group("train")  # one worker runs the module: its runs share the reference
 

@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from kosmos_jax.train.checkpoint import Checkpoints
 from kosmos_jax.train.metrics_log import read_metrics, train_losses
+from kosmos_jax.workdir.checkpoints import Checkpoints
 
 pytestmark = pytest.mark.xdist_group("train_baselines")
 

@@ -3,6 +3,7 @@
 
 Takes a workdir (run.json, checkpoints/; KOSMOS-E's also tokenizer.model) and a split of its data or
 a Cornell-format folder; gives WORKDIR/eval/STEP/results.json, results.md and answers.jsonl. The
-decoding and scoring are kosmos_jax.evaluation's; this stage reads back what the trainer wrote
-(run.py: KOSMOS-E's runs and what every run holds, baseline_run.py: a baseline's).
+decoding and scoring are kosmos_jax.evaluation's; the run is opened through kosmos_jax.workdir
+(KOSMOS-E's runs and what every run holds; baseline_run.py: a baseline's, whose views the trainer's
+code remakes). Scoring a KOSMOS-E run imports nothing of kosmos_jax.train.
 """

@@ -36,13 +36,13 @@ import pathlib
 import sys
 import time
 
-from kosmos_jax.evaluate.baseline_run import evaluate_baseline
 from kosmos_jax.evaluate.overlays import write_overlays
-from kosmos_jax.evaluate.run import RunError, open_run, read_description, run_task
 from kosmos_jax.evaluation.cornell_examples import cornell_examples
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.evaluation.tally import markdown
-from kosmos_jax.train.mesh import make_mesh
+from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.workdir.files import RunError, read_description, run_task
+from kosmos_jax.workdir.run import open_run
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -68,6 +68,10 @@ def evaluate(args: argparse.Namespace) -> tuple[dict, list[dict], pathlib.Path]:
     """(results, one row per example, the folder they belong in) of the run in args.workdir, by what it
     trained (run.json's config.task): KOSMOS-E's decoded answers, or a baseline's predicted grasps."""
     if run_task(read_description(args.workdir)) == "baseline":
+        # imported here: a baseline's views are remade with the trainer's code (train.baseline_task),
+        # which scoring KOSMOS-E's runs does not import
+        from kosmos_jax.evaluate.baseline_run import evaluate_baseline
+
         return evaluate_baseline(args)
     return evaluate_kosmos_e(args)
 

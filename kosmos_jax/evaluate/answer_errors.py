@@ -20,7 +20,8 @@ import pathlib
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.evaluate.run import RunError, chosen_step, read_description
+from kosmos_jax.workdir.checkpoints import chosen_step
+from kosmos_jax.workdir.files import RunError, read_description
 from kosmos_jax.text.formatter import FormatConfig, parse_target
 
 CENTRE_PX = (10, 20)

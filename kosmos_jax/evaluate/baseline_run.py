@@ -24,15 +24,14 @@ from kosmos_jax.baselines.family import Family, make_family, predict_views
 from kosmos_jax.baselines.inputs import ViewArrays, make_views, needs_depth
 from kosmos_jax.dataset.inputs import read_photos
 from kosmos_jax.dataset.views import HONEST_TEST_CROP
-from kosmos_jax.evaluate.run import RunError, chosen_step, read_description, run_task
 from kosmos_jax.evaluation.view_scores import view_results
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.train.baseline_task import abstract_state, family_config, load_views
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train.checkpoint import Checkpoints
 from kosmos_jax.train.mesh import make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
-from kosmos_jax.train.state import TrainState
+from kosmos_jax.workdir.checkpoints import Checkpoints, chosen_step
+from kosmos_jax.workdir.files import RunError, read_description, run_task
 
 SPLITS = ("test", "train")
 
@@ -60,17 +59,19 @@ class BaselineRun:
     def name(self) -> str:
         return f"{self.family.config.network} ({self.family.config.mode})"
 
-    def state(self, step: int | None) -> tuple[int, TrainState]:
-        """(step, train state) of checkpoint `step` (None: the newest), on one device."""
+    def weights(self, step: int | None) -> tuple[int, dict]:
+        """(step, {"params": ..., "model_state": BatchNorm statistics}) of checkpoint `step` (None: the
+        newest), on one device; the optimiser's moments are not read."""
         step = chosen_step(self.workdir, step)
         mesh = make_mesh(1, 1, 1, devices=jax.devices()[:1])
-        tx, _ = make_optimizer(self.config.optimizer, self.config.train.steps)
+        tx, _ = make_optimizer(self.config.optimizer, self.config.train.steps)  # only to shape the state
+        shapes = abstract_state(self.family, tx, mesh)
         checkpoints = Checkpoints(self.workdir, asynchronous=False)
         try:
-            state, _, _ = checkpoints.restore(step, abstract_state(self.family, tx, mesh))
+            fields = checkpoints.restore_fields(step, {"params": shapes.params, "model_state": shapes.model_state})
         finally:
             checkpoints.close()
-        return step, state
+        return step, fields
 
     def source_folder(self) -> pathlib.Path:
         """The photos the run was trained on (run.json's data identity), else where its config finds
@@ -129,7 +130,7 @@ def evaluate_baseline(args) -> tuple[dict, list[dict], pathlib.Path]:
         if kinds != [NON]:
             raise ValueError(f"--kinds={args.kinds}: a baseline ({run.name}) takes no instruction; "
                              f"only {NON!r} can be scored")
-    step, state = run.state(args.step)
+    step, weights = run.weights(args.step)
     if args.cornell:
         made = run.cornell_views(args.cornell)
         views, protocol = made.views, "honest"
@@ -141,7 +142,7 @@ def evaluate_baseline(args) -> tuple[dict, list[dict], pathlib.Path]:
         source = {"source": str(run.source_folder()), "fold": run.config.data.fold,
                   "scheme": run.config.data.scheme, "missing_depth": run.description["missing_depth"]}
     views = first_views(views, args.max_examples)
-    grasps = predict_views(run.family, state.params, state.model_state, views, args.batch_size)
+    grasps = predict_views(run.family, weights["params"], weights["model_state"], views, args.batch_size)
     figures, rows = view_results(grasps, views, protocol)
     results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
                "split": label, **source, "model": run.name, "network": run.family.config.network,

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from kosmos_jax.evaluate.run import open_run
+from kosmos_jax.workdir.run import open_run
 from kosmos_jax.evaluation.cornell_examples import cornell_examples
 from kosmos_jax.evaluation.grasp_size import borrowed_size
 from kosmos_jax.evaluation.instructions import combine, group_instructions

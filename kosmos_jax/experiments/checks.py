@@ -28,7 +28,7 @@ from kosmos_jax.models.kosmos2 import abstract_model, param_count
 from kosmos_jax.train.mesh import make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.task import check_batch_layout
-from kosmos_jax.train.trainer import model_config
+from kosmos_jax.workdir.model import model_config
 
 VOCAB_MARGIN = 2048
 SOURCES = ("synthetic", "cornell")  # or a Cornell-format folder's path

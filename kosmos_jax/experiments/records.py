@@ -15,7 +15,7 @@ import platform
 import jax
 
 from kosmos_jax.train.metrics_log import read_metrics
-from kosmos_jax.train.trainer import RUN_FILE
+from kosmos_jax.workdir.files import RUN_FILE
 
 FOLD_FILE = "fold.json"
 BUILD_STATS = "build_stats.json"  # dataset.build.STATS_FILE, beside the dataset a KOSMOS-E run trained on

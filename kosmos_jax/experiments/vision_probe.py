@@ -27,7 +27,8 @@ import numpy as np
 import optax
 from flax import nnx
 
-from kosmos_jax.evaluate.run import RunError, open_run
+from kosmos_jax.workdir.files import RunError
+from kosmos_jax.workdir.run import open_run
 from kosmos_jax.models.connector import cell_centre, cell_index
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.vision import VisionModel

@@ -27,12 +27,13 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from kosmos_jax.evaluate.run import RunError, open_run
 from kosmos_jax.evaluation.decoding import Decoder
 from kosmos_jax.evaluation.instructions import Instruction, combine
 from kosmos_jax.evaluation.prompts import left_padded
 from kosmos_jax.evaluation.questions import questions
 from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.kosmos2 import split_model
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
@@ -41,8 +42,8 @@ from kosmos_jax.predict.images import load_image
 from kosmos_jax.predict.sizes import CORNELL_SIZE, training_size
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
-from kosmos_jax.train.mesh import make_mesh
-from kosmos_jax.train.state import split_model
+from kosmos_jax.workdir.files import RunError
+from kosmos_jax.workdir.run import open_run
 
 BATCH_SIZES = (1, 4, 16)
 PROMPT_STEP = 32

@@ -37,6 +37,7 @@ from kosmos_jax.train.mesh import batch_sharding, make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import TrainState, abstract_train_state
 from kosmos_jax.train.step import make_train_step
+from kosmos_jax.workdir import model as run_model
 
 GiB = 1 << 30
 
@@ -234,7 +235,7 @@ class TrainerStep:
 
 
 def trainer_step(config: ml_collections.ConfigDict, mesh: jax.sharding.Mesh) -> TrainerStep:
-    model_config = trainer.model_config(config.model, vocab_size(config))
+    model_config = run_model.model_config(config.model, vocab_size(config))
     tx, schedule = make_optimizer(config.optimizer, config.train.steps)
     step = make_train_step(model_config, tx, schedule, mesh, microbatches=config.train.microbatches,
                            seed=config.train.seed)

@@ -14,7 +14,6 @@ below) or "baseline" (GR-ConvNet / GG-CNN2, train/baseline_task.py, configs/base
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 import shutil
@@ -27,25 +26,22 @@ import numpy as np
 from flax import nnx
 
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
-from kosmos_jax.models import config as model_configs
 from kosmos_jax.models import value_embeddings, weights
+from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import build
-from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed
 from kosmos_jax.train.baseline_task import baseline_task
-from kosmos_jax.train.checkpoint import Checkpoints
 from kosmos_jax.train.mesh import batch_sharding, make_mesh
 from kosmos_jax.train.metrics_log import MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state, split_model
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step
 from kosmos_jax.train.task import Task, check_batch_layout
-
-RUN_FILE = "run.json"
-TOKENIZER_FILE = "tokenizer.model"
-
+from kosmos_jax.workdir.checkpoints import Checkpoints
+from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE
+from kosmos_jax.workdir.model import model_config
 
 class NonFiniteError(FloatingPointError):
     """A training step gave a loss or gradients that are not finite."""
@@ -55,22 +51,7 @@ class RunMismatchError(ValueError):
     """The workdir holds a run of another model or dataset."""
 
 
-def model_config(model: "ml_collections.ConfigDict", vocab_size: int) -> model_configs.Kosmos2Config:  # noqa: F821
-    """The Kosmos2Config a config's `model` section names, with the tokenizer's vocabulary."""
-    base = model_configs.get_config(model.size)
-    given = lambda section: {name: value for name, value in section.to_dict().items() if value is not None}
-    vision = dataclasses.replace(base.vision, **given(model.vision))
-    text = dataclasses.replace(base.text, **{**given(model.text), "vocab_size": vocab_size})
-    if model.latent_query_num != special.IMAGE_SLOTS:
-        raise ValueError(f"model.latent_query_num={model.latent_query_num}: the prompt has {special.IMAGE_SLOTS} image slots")
-    # .get: the configs stored by runs before the connector options existed (evaluate reads them) lack them
-    return base.replace(vision=vision, text=text, latent_query_num=model.latent_query_num,
-                        compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
-                        scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"),
-                        connector_grid_code=model.get("connector_grid_code", 0.0))
-
-
-def initial_params(config, model_cfg: model_configs.Kosmos2Config, tokenizer):
+def initial_params(config, model_cfg: Kosmos2Config, tokenizer):
     """Fresh parameters, or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
     value_code = config.model.get("value_token_code", 0.0)  # .get: configs stored before the option
     if not config.init_from:

@@ -1,10 +1,10 @@
-"""A trained KOSMOS-E run's workdir as the evaluation needs it: its model, text format, protocol,
-tokenizer, test data and the parameters of one checkpoint; and what any run's workdir holds (run.json,
-its task, its checkpoint steps), which the baselines' evaluation (baseline_run) reads too.
+"""A KOSMOS-E run's workdir opened: its config, description (run.json), tokenizer, model, text
+format and protocol, its dataset's splits, and the parameters of one checkpoint.
 
 Everything is read back from what the trainer wrote: run.json (the config, the data identity with
 the FormatConfig the examples were made with, the dataset folder), tokenizer.model and
-checkpoints/STEP. Errors name the file that is missing and what to do.
+checkpoints/STEP, of which only the parameters are read. Errors name the file that is missing and
+what to do.
 """
 
 from __future__ import annotations
@@ -13,21 +13,20 @@ import dataclasses
 import json
 import pathlib
 
+import jax
 import ml_collections
+from jax.sharding import Mesh, NamedSharding
 
+from kosmos_jax.dataset.built import open_dataset
 from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.kosmos2 import abstract_model, split_model
+from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.models.sharding import param_shardings
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
-from kosmos_jax.train.checkpoint import Checkpoints
-from kosmos_jax.train.data import open_dataset
-from kosmos_jax.train.mesh import make_mesh
-from kosmos_jax.train.optimizer import make_optimizer
-from kosmos_jax.train.state import abstract_train_state
-from kosmos_jax.train.trainer import RUN_FILE, TOKENIZER_FILE, model_config
-
-
-class RunError(FileNotFoundError):
-    """The workdir lacks what an evaluation needs."""
+from kosmos_jax.workdir.checkpoints import checkpoint_steps, chosen_step, restore_params
+from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE, RunError, read_description, run_task
+from kosmos_jax.workdir.model import model_config
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,53 +56,22 @@ class Run:
             raise ValueError(f"unknown split {name!r}; the dataset {folder} has {sorted(splits)}")
         return splits[name]
 
-    def params(self, step: int | None, mesh=None):
+    def params(self, step: int | None, mesh: Mesh | None = None):
         """(step, parameters) of checkpoint `step` (None: the newest), placed on `mesh` (default: all
-        devices on the fsdp axis)."""
+        devices on the fsdp axis); the checkpoint's optimiser state is not read."""
         step = chosen_step(self.workdir, step)
-        mesh = mesh or make_mesh(1, -1, 1)
-        tx, _ = make_optimizer(self.config.optimizer, self.config.train.steps)
-        checkpoints = Checkpoints(self.workdir, asynchronous=False)
-        try:
-            state, _, _ = checkpoints.restore(step, abstract_train_state(self.model_config, tx, mesh))
-        finally:
-            checkpoints.close()
-        return step, state.params
+        return step, restore_params(self.workdir, step, abstract_params(self.model_config, mesh or make_mesh(1, -1, 1)))
 
 
-def checkpoint_steps(workdir: pathlib.Path) -> list[int]:
-    if not (workdir / "checkpoints").is_dir():
-        return []
-    checkpoints = Checkpoints(workdir, asynchronous=False)
-    try:
-        return sorted(checkpoints.all_steps())
-    finally:
-        checkpoints.close()
+def abstract_params(config: Kosmos2Config, mesh: Mesh):
+    """The model's parameters as ShapeDtypeStructs carrying their shardings on `mesh` (a restore target)."""
+    _, params, _ = split_model(abstract_model(config))
 
+    def with_sharding(sharding, variable):
+        return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), variable)
 
-def chosen_step(workdir: pathlib.Path, step: int | None) -> int:
-    """`step` (None: the newest) if the workdir holds its checkpoint, else a RunError saying what it holds."""
-    steps = checkpoint_steps(workdir)
-    if not steps:
-        raise RunError(f"{workdir} holds no checkpoint (checkpoints/ is empty or missing): train first")
-    step = steps[-1] if step is None else step
-    if step not in steps:
-        raise RunError(f"{workdir} has no checkpoint of step {step}; it has {steps}")
-    return step
-
-
-def read_description(workdir) -> dict:
-    """The run.json a trainer wrote in `workdir`."""
-    workdir = pathlib.Path(workdir)
-    if not (workdir / RUN_FILE).is_file():
-        raise RunError(f"{workdir} is not a training run's workdir (no {RUN_FILE}); "
-                       "train one with python -m kosmos_jax.train --config=... --workdir=...")
-    return json.loads((workdir / RUN_FILE).read_text())
-
-
-def run_task(description: dict) -> str:
-    """What the run trained (its config.task): "kosmos_e" or "baseline"."""
-    return description["config"].get("task", "kosmos_e")
+    return jax.tree.map(with_sharding, param_shardings(params, mesh), params,
+                        is_leaf=lambda x: isinstance(x, NamedSharding))
 
 
 def open_run(workdir) -> Run:

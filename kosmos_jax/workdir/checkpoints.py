@@ -1,6 +1,10 @@
 """Checkpoints of a run with orbax: WORKDIR/checkpoints/STEP holds the train state, the data
 iterator's state and the run's description (config, data identity, RNG) as JSON.
 
+The trainer saves and restores all of it. Readers that only use the model (evaluation, prediction,
+export) restore the parameters alone: orbax reads the `params` subtree of the state item
+(PyTreeRestore's partial restore) and never reads, nor allocates, the optimiser's moments.
+
 The train state goes to orbax as a nested dict of arrays keyed by its tree paths, so a restore
 needs only a target of the same paths (ShapeDtypeStructs with the shardings wanted): a checkpoint
 written on one mesh restores onto any other. Saves are asynchronous; orbax writes each step under
@@ -14,6 +18,8 @@ import pathlib
 
 import jax
 import orbax.checkpoint as ocp
+
+from kosmos_jax.workdir.files import RunError
 
 ITEMS = ("state", "data", "run")
 
@@ -80,6 +86,16 @@ class Checkpoints:
             run=ocp.args.JsonRestore()))
         return from_nested(restored["state"], abstract_state), restored["data"], restored["run"]
 
+    def restore_fields(self, step: int, abstract_fields: dict) -> dict:
+        """{field: tree} of the train state's top-level fields named in `abstract_fields` (e.g.
+        {"params": ...}: a tree of ShapeDtypeStructs with the shardings wanted); the state's other
+        fields (the optimiser's moments, the step) are neither read nor allocated."""
+        target = to_nested(abstract_fields)
+        restored = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.PyTreeRestore(
+            target, restore_args=ocp.checkpoint_utils.construct_restore_args(target), partial_restore=True)))
+        # a field without arrays (a model without BatchNorm's empty model_state) is not in the checkpoint
+        return {name: from_nested(restored["state"].get(name, {}), like) for name, like in abstract_fields.items()}
+
     def run_info(self, step: int) -> dict:
         """The run description stored with `step`, without reading the arrays."""
         return self.manager.restore(step, args=ocp.args.Composite(run=ocp.args.JsonRestore()))["run"]
@@ -90,3 +106,35 @@ class Checkpoints:
     def close(self) -> None:
         self.manager.wait_until_finished()
         self.manager.close()
+
+
+def checkpoint_steps(workdir) -> list[int]:
+    """The complete checkpoints' steps of `workdir`, oldest first."""
+    workdir = pathlib.Path(workdir)
+    if not (workdir / "checkpoints").is_dir():
+        return []
+    checkpoints = Checkpoints(workdir, asynchronous=False)
+    try:
+        return sorted(checkpoints.all_steps())
+    finally:
+        checkpoints.close()
+
+
+def chosen_step(workdir, step: int | None) -> int:
+    """`step` (None: the newest) if the workdir holds its checkpoint, else a RunError saying what it holds."""
+    steps = checkpoint_steps(workdir)
+    if not steps:
+        raise RunError(f"{workdir} holds no checkpoint (checkpoints/ is empty or missing): train first")
+    step = steps[-1] if step is None else step
+    if step not in steps:
+        raise RunError(f"{workdir} has no checkpoint of step {step}; it has {steps}")
+    return step
+
+
+def restore_params(workdir, step: int, abstract_params):
+    """The parameters of checkpoint `step` of `workdir`, placed as `abstract_params`' shardings say."""
+    checkpoints = Checkpoints(workdir, asynchronous=False)
+    try:
+        return checkpoints.restore_fields(step, {"params": abstract_params})["params"]
+    finally:
+        checkpoints.close()
