@@ -103,3 +103,24 @@ def test_the_patch_angle_loss_reads_the_grasp_patch_and_its_angle_bin():
     uniform = float(loss.patch_angle_sum(jnp.zeros_like(tokens), rows, grasp, 112, mask))
     assert uniform == pytest.approx(2 * np.log(BINS), rel=1e-6)  # two loss tokens, a uniform guess each
     assert float(loss.patch_angle_sum(jnp.zeros_like(tokens), rows, grasp.at[0, 0].set(jnp.nan), 112, mask)) == 0.0
+
+
+def test_the_tower_angle_loss_reads_the_grasp_patch_as_twice_its_angle():
+    side, width = 4, 8
+    directions = loss.tower_angle_directions(width)
+    np.testing.assert_allclose(directions.T @ directions, np.eye(2), atol=1e-6)  # an orthonormal pair
+    theta = 0.4
+    features = np.zeros((1, 1 + side * side, width), np.float32)
+    cell = 2 * side + 1  # column 1, row 2 of the 4x4 grid, as above
+    features[0, 1 + cell] = directions @ (loss.TOWER_ANGLE_RADIUS * np.array([np.cos(2 * theta), np.sin(2 * theta)]))
+    grasp = jnp.asarray([[1.5 * 28, 2.5 * 28, 20.0, 10.0, theta]], jnp.float32)
+    mask = jnp.asarray([[False, True, True, False]])
+    exact = float(loss.tower_angle_sum(jnp.asarray(features), grasp, 112, mask))
+    assert exact == pytest.approx(0.0, abs=1e-6)
+    half_turn = float(loss.tower_angle_sum(jnp.asarray(features), grasp.at[0, 4].add(np.pi), 112, mask))
+    assert half_turn == pytest.approx(0.0, abs=1e-5)  # a grasp turned half a turn is the same grasp
+    quarter = float(loss.tower_angle_sum(jnp.asarray(features), grasp.at[0, 4].add(np.pi / 2), 112, mask))
+    assert quarter == pytest.approx(2 * (2 * loss.TOWER_ANGLE_RADIUS) ** 2, rel=1e-5)  # opposite on the circle, two tokens
+    elsewhere = float(loss.tower_angle_sum(jnp.asarray(np.roll(features, 1, axis=1)), grasp, 112, mask))
+    assert elsewhere == pytest.approx(2 * loss.TOWER_ANGLE_RADIUS ** 2, rel=1e-5)  # a zero read at the grasp's patch
+    assert float(loss.tower_angle_sum(jnp.asarray(features), grasp.at[0, 0].set(jnp.nan), 112, mask)) == 0.0

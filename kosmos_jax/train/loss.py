@@ -91,12 +91,38 @@ def patch_angle_sum(patch_tokens: jax.Array, angle_rows: jax.Array, grasp: jax.A
     return jnp.sum(nll * weight)
 
 
+TOWER_ANGLE_RADIUS = 0.5  # of the unit-norm feature, the share the orientation is asked to take
+
+
+def tower_angle_directions(width: int) -> np.ndarray:
+    """[width, 2]: a fixed orthonormal pair, the read-out of `tower_angle_sum` (no parameters to learn
+    or export; seeded, so every run and process reads the same pair)."""
+    directions, _ = np.linalg.qr(np.random.default_rng(0).normal(size=(width, 2)))
+    return directions.astype(np.float32)
+
+
+def tower_angle_sum(features: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:
+    """The tower-angle loss as a sum: the vision tower's feature at the patch that holds the target
+    grasp's centre (features [B, 1 + patches, D], unit-norm tokens, the class token first), read along
+    `tower_angle_directions`, against TOWER_ANGLE_RADIUS * (cos 2theta, sin 2theta) of the grasp's angle
+    (squared error; 2theta, as a grasp and its half-turn are one). It asks the tower for the
+    orientation at the grasp in a smooth, periodic form, which a 256-way answer does not give it;
+    weighted by each example's loss tokens as `pointing_sum` is."""
+    side = grid_side(features.shape[1] - 1)
+    cell = 1 + cell_index(grasp[:, :2] / image_side, side)
+    picked = jnp.take_along_axis(features, cell[:, None, None], axis=1)[:, 0].astype(jnp.float32)
+    read = picked @ jnp.asarray(tower_angle_directions(features.shape[-1]))
+    theta = jnp.nan_to_num(grasp[:, 4])
+    target = TOWER_ANGLE_RADIUS * jnp.stack([jnp.cos(2 * theta), jnp.sin(2 * theta)], axis=-1)
+    weight = jnp.where(jnp.isfinite(grasp).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
+    return jnp.sum(jnp.sum((read - target) ** 2, axis=-1) * weight)
+
+
 def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
-    """Loss and accuracy per counted token (0 for a batch without any); the pointing loss when summed."""
+    """Loss and accuracy per counted token (0 for a batch without any); so the auxiliary losses summed."""
     count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
     out = {"loss": sums["loss_sum"] / count, "accuracy": sums["correct"] / count}
-    if "pointing_sum" in sums:
-        out["pointing"] = sums["pointing_sum"] / count
-    if "patch_angle_sum" in sums:
-        out["patch_angle"] = sums["patch_angle_sum"] / count
+    for name in ("pointing", "patch_angle", "tower_angle"):
+        if f"{name}_sum" in sums:
+            out[name] = sums[f"{name}_sum"] / count
     return out

@@ -15,6 +15,7 @@ import pathlib
 import sys
 
 METRICS_FILE = "metrics.jsonl"
+AUXILIARY_LOSSES = ("pointing", "patch_angle", "tower_angle")  # logged beside the loss when a run adds them
 
 
 def _plain(value):
@@ -69,8 +70,8 @@ class MetricsLog:
             self.bar.n = record["step"]
             self.bar.set_postfix(loss=f"{record['loss']:.4f}", lr=f"{record['learning_rate']:.2e}")
             return
-        pointing = f", pointing {record['pointing']:.3f}" if "pointing" in record else ""
-        print(f"step {record['step']}/{self.total_steps}: loss {record['loss']:.4f}{pointing}, lr {record['learning_rate']:.3e}, "
+        auxiliary = "".join(f", {name.replace('_', ' ')} {record[name]:.3f}" for name in AUXILIARY_LOSSES if name in record)
+        print(f"step {record['step']}/{self.total_steps}: loss {record['loss']:.4f}{auxiliary}, lr {record['learning_rate']:.3e}, "
               f"grad norm {record['grad_norm']:.3f}, {record['examples_per_s']:.1f} examples/s, "
               f"data wait {100 * record['data_wait_fraction']:.1f}%", file=sys.stderr, flush=True)
 

@@ -33,7 +33,8 @@ from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
-from kosmos_jax.train.loss import circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums
+from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums,
+                                   tower_angle_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
 
@@ -98,7 +99,7 @@ def _all_finite(tree) -> jax.Array:
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
                     mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
                     angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0,
-                    pointing_queries: int = 0) -> Callable:
+                    pointing_queries: int = 0, tower_angle_loss: float = 0.0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
@@ -110,7 +111,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     angle tokens (`loss.smoothed_angle_sum`; angle_ids: each bin's token id), while `loss` stays the
     plain cross-entropy, comparable with runs without it. With `patch_angle_loss` > 0, also
     patch_angle: `loss.patch_angle_sum` of the connector's projected image tokens against the angle
-    tokens' embedding rows (held fixed for it), added to the loss with that weight.
+    tokens' embedding rows (held fixed for it), added to the loss with that weight. With
+    `tower_angle_loss` > 0, also tower_angle: `loss.tower_angle_sum`, the tower's feature at the grasp's
+    patch read as (cos, sin) of twice the angle, added with that weight.
     """
     for name, weight in (("angle_smoothing", angle_smoothing), ("patch_angle_loss", patch_angle_loss)):
         if weight and (angle_ids is None or len(angle_ids) == 0):
@@ -139,6 +142,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             patch_tokens = model.image_to_text_projection.dense(features)
             sums["patch_angle_sum"] = patch_angle_sum(patch_tokens, rows, batch["grasp"], side, batch["loss_mask"])
             objective = objective + patch_angle_loss * sums["patch_angle_sum"]
+        if tower_angle_loss:
+            sums["tower_angle_sum"] = tower_angle_sum(features, batch["grasp"], side, batch["loss_mask"])
+            objective = objective + tower_angle_loss * sums["tower_angle_sum"]
         return objective, sums
 
     def accumulate(params, step, parts):
@@ -152,8 +158,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
                      "tokens": jnp.zeros((), jnp.int32)}
         if pointing_loss:
             zero_sums["pointing_sum"] = jnp.zeros((), jnp.float32)
-        if patch_angle_loss:
-            zero_sums["patch_angle_sum"] = jnp.zeros((), jnp.float32)
+        for name, weight in (("patch_angle", patch_angle_loss), ("tower_angle", tower_angle_loss)):
+            if weight:
+                zero_sums[f"{name}_sum"] = jnp.zeros((), jnp.float32)
         zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
         (grads, sums), _ = jax.lax.scan(add, zero, (jnp.arange(microbatches), parts))
         return grads, sums

@@ -34,7 +34,7 @@ from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed
 from kosmos_jax.train.baseline_task import baseline_task
 from kosmos_jax.train.mesh import batch_sharding, make_mesh
-from kosmos_jax.train.metrics_log import MetricsLog
+from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state, split_model
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step
@@ -151,7 +151,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                  angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()),
                                  angle_smoothing=config.train.get("angle_smoothing", 0.0),
                                  patch_angle_loss=config.train.get("patch_angle_loss", 0.0),
-                                 pointing_queries=config.train.get("pointing_queries", 0))
+                                 pointing_queries=config.train.get("pointing_queries", 0),
+                                 tower_angle_loss=config.train.get("tower_angle_loss", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
@@ -169,7 +170,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                 "examples_per_s": batch_size / step_s,
                 "tokens_per_s": batch_size * host["tokens"].shape[1] / step_s,
                 "data_wait_fraction": min(1.0, waited / step_s),
-                **{name: metrics[name] for name in ("pointing", "patch_angle") if name in metrics}}
+                **{name: metrics[name] for name in AUXILIARY_LOSSES if name in metrics}}
 
     def split_record(name, step, state, with_grasps: bool, log: MetricsLog) -> dict:
         """Loss and token accuracy on split `name`; with the grasp accuracy of decoded answers if asked."""
