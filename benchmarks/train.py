@@ -48,7 +48,8 @@ def random_batch(cfg, batch: int, length: int, seed: int = 0) -> dict:
     loss_mask = np.zeros((batch, length), bool)
     loss_mask[:, 2 + cfg.latent_query_num + 1:] = True
     return {"image": rng.integers(0, 256, (batch, 224, 224, 3), dtype=np.uint8), "tokens": tokens,
-            "loss_mask": loss_mask, "image_mask": image_mask, "length": np.full(batch, length, np.int32)}
+            "loss_mask": loss_mask, "image_mask": image_mask, "length": np.full(batch, length, np.int32),
+            "grasp": np.zeros((batch, 5), np.float32), "example_index": np.arange(batch)}
 
 
 def compiled_flops(compiled) -> float:

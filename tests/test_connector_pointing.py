@@ -107,7 +107,7 @@ def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch
     for seed in range(150):
         images, grasp, _ = _squares(count, seed)
         batch = dict(image=images, tokens=tokens, loss_mask=loss_mask, image_mask=image_mask,
-                     length=np.full(count, length, np.int32), grasp=grasp)
+                     length=np.full(count, length, np.int32), grasp=grasp, example_index=np.arange(count))
         train_state, metrics = train_step(train_state, batch)
         if seed == 0:
             first = float(metrics["pointing"])

@@ -58,7 +58,7 @@ def test_the_batch_is_what_the_trainer_feeds_the_step():
     config = _config("paper")
     mesh = make_mesh(1, -1, 1)
     batch = train_compile.batch_spec(config, mesh)
-    assert set(batch) == set(step.BATCH_KEYS)
+    assert set(batch) == set(step.TRAIN_KEYS)
     assert batch["image"].shape == (64, STORED_IMAGE_SIZE, STORED_IMAGE_SIZE, 3) and batch["tokens"].shape == (64, 256)
     assert all(spec.sharding == batch_sharding(mesh) for spec in batch.values())
 

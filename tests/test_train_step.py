@@ -1,5 +1,6 @@
 """The training step on the tiny model: optimiser, loss normalisation, accumulation, non-finite
-steps, dropout keys, and the same losses on a (data 2, fsdp 2, tensor 2) mesh as on one device."""
+steps, dropout keys and per-example masks, and the same losses on a (data 2, fsdp 2, tensor 2) mesh
+as on one device."""
 
 import dataclasses
 import functools
@@ -18,6 +19,7 @@ from jax.sharding import PartitionSpec
 
 from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2
+from kosmos_jax.models import layers
 from kosmos_jax.models.layers import LayerNorm, dense
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import loss, mesh, optimizer, state, step
@@ -57,6 +59,7 @@ def _batch(seed=0, loss_tokens=None):
         "image_mask": image_mask,
         "length": length,
         "grasp": np.zeros((BATCH, 5), np.float32),  # other features of the pipeline's batch ride along
+        "example_index": np.arange(100 * seed, 100 * seed + BATCH),  # int64, as the pipeline's: dropout's key
     }
 
 
@@ -289,11 +292,10 @@ def test_non_finite_step_returns_the_state_unchanged():
         np.testing.assert_array_equal(b, a)
 
 
-def test_dropout_keys_depend_on_seed_step_and_microbatch_only():
-    keys = {(seed, s, m): jax.random.key_data(step.dropout_key(seed, s, m)).tolist()
-            for seed in (0, 1) for s in (0, 1) for m in (0, 1)}
-    assert len({json.dumps(k) for k in keys.values()}) == 8
-    assert keys[(0, 1, 1)] == jax.random.key_data(step.dropout_key(0, jnp.int32(1), jnp.int32(1))).tolist()
+def test_dropout_keys_depend_on_seed_and_step_only():
+    keys = {(seed, s): jax.random.key_data(step.dropout_key(seed, s)).tolist() for seed in (0, 1) for s in (0, 1)}
+    assert len({json.dumps(k) for k in keys.values()}) == 4
+    assert keys[(0, 1)] == jax.random.key_data(step.dropout_key(0, jnp.int32(1))).tolist()
 
     batch = _batch()
     losses = []
@@ -302,6 +304,55 @@ def test_dropout_keys_depend_on_seed_step_and_microbatch_only():
         train_state = train_state._replace(step=jax.device_put(jnp.int32(at_step), train_state.step.sharding))
         losses.append(float(train_step(train_state, batch)[1]["loss"]))  # the loss before the update: masks only
     assert losses[0] == losses[1] and losses[2] != losses[0]
+
+
+def _permuted(batch, order):
+    return {key: value[order] for key, value in batch.items()}
+
+
+def test_a_rows_dropout_mask_follows_its_example_id_not_its_place():
+    dropout = layers.Dropout(0.5, rngs=nnx.Rngs(dropout=3))
+    ones = jnp.ones((6, 5, 7), jnp.float32)
+    ids = jnp.asarray([10, 11, 12, 13, 14, 15])
+    order = np.array([3, 0, 5, 1, 4, 2])
+
+    def masks(ids, rows=ones):
+        copy = nnx.clone(dropout)  # the same stream key and count each time
+        with layers.dropout_per_example(ids):
+            return np.asarray(copy(rows))
+
+    first = masks(ids)
+    assert 0.3 < np.mean(first == 0) < 0.7 and set(np.unique(first)) == {0.0, 2.0}
+    np.testing.assert_array_equal(masks(ids[order]), first[order])  # a row's mask goes where it goes
+    np.testing.assert_array_equal(masks(ids[:2], ones[:2]), first[:2])  # nor does the batch's size matter
+    other = masks(ids.at[0].set(99))
+    assert np.any(other[0] != first[0]) and np.array_equal(other[1:], first[1:])
+    # outside the block, and off, it is nnx's own dropout
+    np.testing.assert_array_equal(nnx.clone(dropout)(ones), nnx.Dropout(0.5, rngs=nnx.Rngs(dropout=3))(ones))
+    with layers.dropout_per_example(ids):
+        assert nnx.clone(dropout)(ones, deterministic=True) is ones
+
+
+def test_a_rows_dropout_follows_its_example_through_the_train_step():
+    """The loss (of the parameters before the update: dropout noise only) of a batch and of the same
+    examples in another order, in one microbatch or two; another example id moves it."""
+    batch = _batch()
+    order = np.array([5, 2, 7, 0, 3, 6, 1, 4])
+    losses = {}
+    for microbatches in (1, 2):
+        for name, rows in (("batch", batch), ("permuted", _permuted(batch, order)),
+                           ("other ids", {**batch, "example_index": batch["example_index"] + 1000})):
+            train_state, train_step = _fresh_state(TINY, microbatches)
+            losses[microbatches, name] = float(train_step(train_state, rows)[1]["loss"])
+    quiet_state, quiet_step = _fresh_state(NO_DROPOUT, 1)
+    quiet = float(quiet_step(quiet_state, batch)[1]["loss"])
+    reference = losses[1, "batch"]
+    assert abs(reference - quiet) > 1e-3  # dropout is on
+    # float32 sums of the same per-row terms in another order (and split in two): a few ulps
+    for key in ((1, "permuted"), (2, "batch"), (2, "permuted")):
+        assert losses[key] == pytest.approx(reference, rel=1e-6), key
+    for microbatches in (1, 2):
+        assert abs(losses[microbatches, "other ids"] - reference) > 1e-3
 
 
 # -- the mesh -------------------------------------------------------------------------------------

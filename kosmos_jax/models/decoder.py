@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import TextConfig
-from kosmos_jax.models.layers import (ACT, HEADS, LAYERS, LayerNorm, dense, dot_product_attention, gelu_exact,
+from kosmos_jax.models.layers import (ACT, HEADS, LAYERS, Dropout, LayerNorm, dense, dot_product_attention, gelu_exact,
                                       rematerialised, scan_blocks, split_heads, stack_blocks)
 from kosmos_jax.models.sharding import constrain, logical
 
@@ -31,7 +31,7 @@ class TextAttention(nnx.Module):
         self.q_proj = dense(d, d, ("embed", "heads"), rngs, std=cfg.init_std, dtype=dtype)
         self.out_proj = dense(d, d, ("heads", "embed"), rngs, std=cfg.init_std, dtype=dtype)
         self.inner_attn_ln = LayerNorm(d, cfg.layer_norm_eps, rngs, "norm") if inner_layernorm else None
-        self.attn_dropout = nnx.Dropout(cfg.attention_dropout, rngs=rngs)
+        self.attn_dropout = Dropout(cfg.attention_dropout, rngs=rngs)
 
     def __call__(self, x, mask, kv_input=None, layer_cache=None, index=None):
         """x [B,T,D]; keys from `kv_input` (default x). With `layer_cache` (k, v), the new keys are
@@ -57,8 +57,8 @@ class TextFFN(nnx.Module):
         self.fc1 = dense(cfg.embed_dim, cfg.ffn_dim, ("embed", "mlp"), rngs, std=cfg.init_std, dtype=dtype)
         self.fc2 = dense(cfg.ffn_dim, cfg.embed_dim, ("mlp", "embed"), rngs, std=cfg.init_std, dtype=dtype)
         self.ffn_layernorm = LayerNorm(cfg.ffn_dim, cfg.layer_norm_eps, rngs, "norm")
-        self.activation_dropout = nnx.Dropout(cfg.activation_dropout, rngs=rngs)
-        self.dropout = nnx.Dropout(cfg.dropout, rngs=rngs)
+        self.activation_dropout = Dropout(cfg.activation_dropout, rngs=rngs)
+        self.dropout = Dropout(cfg.dropout, rngs=rngs)
 
     def __call__(self, x):
         h = constrain(gelu_exact(self.fc1(x)), ("batch", "length", "act_mlp"))
@@ -72,7 +72,7 @@ class TextBlock(nnx.Module):
         self.self_attn_layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)
         self.ffn = TextFFN(cfg, dtype, rngs)
         self.final_layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)  # the pre-FFN LN
-        self.dropout = nnx.Dropout(cfg.dropout, rngs=rngs)
+        self.dropout = Dropout(cfg.dropout, rngs=rngs)
         if magneto_gain != 1.0:  # MAGNETO: sqrt(log 2N) on fc1, fc2, out_proj, v_proj
             for linear in (self.ffn.fc1, self.ffn.fc2, self.self_attn.out_proj, self.self_attn.v_proj):
                 linear.kernel.set_value(linear.kernel.get_value() * magneto_gain)
@@ -138,7 +138,7 @@ class TextTransformer(nnx.Module):
         else:
             self.layers = nnx.List([TextBlock(cfg, dtype, rngs, magneto_gain) for _ in range(cfg.layers)])
         self.layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)
-        self.dropout = nnx.Dropout(cfg.dropout, rngs=rngs)
+        self.dropout = Dropout(cfg.dropout, rngs=rngs)
 
     def embed(self, input_ids, positions, image_embeds=None, image_mask=None):
         # transformers applies embedding dropout twice (in forward_embedding and again in forward);

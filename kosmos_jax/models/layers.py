@@ -7,6 +7,9 @@ transposes PyTorch's (out, in).
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+
 import jax
 import jax.numpy as jnp
 from flax import nnx
@@ -42,6 +45,47 @@ class LayerNorm(nnx.LayerNorm):
         return super().__call__(x.astype(jnp.float32)).astype(x.dtype)
 
 
+_EXAMPLE_IDS: contextvars.ContextVar = contextvars.ContextVar("kosmos_jax_dropout_example_ids", default=None)
+
+
+@contextlib.contextmanager
+def dropout_per_example(example_ids: jax.Array):
+    """Within it, every `Dropout` draws each row of its input from its own key: row b's mask from
+    fold_in(k, example_ids[b]), k being the layer's key for this call. A row's mask then follows its
+    example, not its place in the batch, the batch's size, its microbatches or how many processes
+    hold it. `example_ids` int [B] (the batch's `example_index`) is read when a Dropout is called
+    (traced under jit), so the forward pass runs inside the block."""
+    token = _EXAMPLE_IDS.set(example_ids)
+    try:
+        yield
+    finally:
+        _EXAMPLE_IDS.reset(token)
+
+
+class Dropout(nnx.Dropout):
+    """nnx.Dropout (same state, same rate and `deterministic` handling) whose mask, inside
+    `dropout_per_example`, is drawn row by row from each example's own key; outside it, nnx's one
+    mask over the whole input. Off (rate 0 or deterministic) it returns its input, as nnx's does."""
+
+    def __call__(self, inputs, *, deterministic: bool | None = None, rngs=None):
+        example_ids = _EXAMPLE_IDS.get()
+        deterministic = self.deterministic if deterministic is None else deterministic
+        if example_ids is None or deterministic is not False or self.rate in (0.0, 1.0):
+            return super().__call__(inputs, deterministic=deterministic, rngs=rngs)
+        if 0 in self.broadcast_dims or inputs.shape[:1] != example_ids.shape:
+            raise ValueError(f"per-example dropout needs the batch first: input {inputs.shape}, "
+                             f"{example_ids.shape} example ids, broadcast_dims {self.broadcast_dims}")
+        rngs = self.rngs if rngs is None else rngs
+        if isinstance(rngs, nnx.Rngs):
+            rngs = rngs[self.rng_collection]
+        key = rngs if isinstance(rngs, jax.Array) else rngs()  # a key, or the stream's next one
+        keep = 1.0 - self.rate
+        row_shape = tuple(1 if dim in self.broadcast_dims else size for dim, size in enumerate(inputs.shape))[1:]
+        keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, example_ids)
+        mask = jnp.broadcast_to(jax.vmap(lambda k: jax.random.bernoulli(k, keep, row_shape))(keys), inputs.shape)
+        return jax.lax.select(mask, inputs / keep, jnp.zeros_like(inputs))
+
+
 def gelu_exact(x):
     return jax.nn.gelu(x, approximate=False)  # PyTorch's nn.GELU() default: erf, not tanh
 
@@ -61,7 +105,7 @@ def attention_scores(q, k):
     return jnp.einsum("bhtd,bhsd->bhts", q, k, preferred_element_type=jnp.float32) * q.shape[-1] ** -0.5
 
 
-def dot_product_attention(q, k, v, mask, dropout: nnx.Dropout | None = None):
+def dot_product_attention(q, k, v, mask, dropout: Dropout | None = None):
     """q [B,T,H,D], k/v [B,S,H,D], mask broadcastable to [B,H,T,S] (True = attend) or None.
 
     Scores and softmax in float32. A row with no allowed key (a padding query) gets uniform

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 from flax import nnx
 
 from kosmos_jax.models.config import VisionConfig
-from kosmos_jax.models.layers import (ACT, LayerNorm, dense, dot_product_attention, quick_gelu, rematerialised,
+from kosmos_jax.models.layers import (ACT, Dropout, LayerNorm, dense, dot_product_attention, quick_gelu, rematerialised,
                                       scan_blocks, split_heads, stack_blocks)
 from kosmos_jax.models.sharding import constrain, logical
 
@@ -52,7 +52,7 @@ class VisionAttention(nnx.Module):
         self.v_proj = dense(d, d, ("embed", "heads"), rngs, std=in_std, dtype=dtype)
         self.q_proj = dense(d, d, ("embed", "heads"), rngs, std=in_std, dtype=dtype)
         self.out_proj = dense(d, d, ("heads", "embed"), rngs, std=d**-0.5, dtype=dtype)
-        self.attn_dropout = nnx.Dropout(cfg.attention_dropout, rngs=rngs)  # on the weights, as CLIP does
+        self.attn_dropout = Dropout(cfg.attention_dropout, rngs=rngs)  # on the weights, as CLIP does
 
     def __call__(self, x):
         q, k, v = (split_heads(p(x), self.num_heads) for p in (self.q_proj, self.k_proj, self.v_proj))

@@ -98,7 +98,7 @@ def make_baseline_step(family, tx, schedule, mesh, state_sharding, *, microbatch
             grad_sum, sums, rest = carry
             index, part = indexed
             grads, (part_sums, rest) = jax.grad(family.loss_sums, has_aux=True)(
-                params, rest, part, dropout_key(seed, step, index), True)
+                params, rest, part, jax.random.fold_in(dropout_key(seed, step), index), True)
             return (jax.tree.map(jnp.add, grad_sum, grads), jax.tree.map(jnp.add, sums, part_sums), rest), None
 
         first = jax.tree.map(lambda x: x[0], parts)
@@ -121,7 +121,7 @@ def make_baseline_step(family, tx, schedule, mesh, state_sharding, *, microbatch
             batch = {key: batch[key] for key in inputs.BATCH_KEYS}
             if microbatches == 1:  # no scan: XLA:CPU ran this one-step scan's convolutions ~20x slower
                 grad_sum, (sums, rest) = jax.grad(family.loss_sums, has_aux=True)(
-                    state.params, state.model_state, batch, dropout_key(seed, state.step, 0), True)
+                    state.params, state.model_state, batch, jax.random.fold_in(dropout_key(seed, state.step), 0), True)
             else:
                 parts = split_microbatches(batch, microbatches)
                 grad_sum, sums, rest = accumulate(state.params, state.model_state, state.step, parts)

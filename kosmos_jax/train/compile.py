@@ -147,6 +147,7 @@ def batch_spec(config: ml_collections.ConfigDict, mesh: jax.sharding.Mesh) -> di
         "image_mask": ((size, length), jnp.bool_),
         "length": ((size,), jnp.int32),
         "grasp": ((size, 5), jnp.float32),
+        "example_index": ((size,), jnp.int32),
     }
     return {key: jax.ShapeDtypeStruct(shape, dtype, sharding=sharding) for key, (shape, dtype) in shapes.items()}
 

@@ -7,10 +7,13 @@
 A batch is a dict of arrays with the global batch on the leading axis (sharded over data and fsdp):
 image uint8 [B, S, S, 3], tokens int32 [B, L], loss_mask and image_mask bool [B, L], length int32
 [B], grasp float32 [B, 5] (the target grasp in the stored image's pixels, read only by the pointing
-loss); other keys are ignored. The loss is the mean over the loss tokens of the whole global batch:
+loss), example_index int [B] (each example's position in its split: its dropout masks' key); other
+keys are ignored. The loss is the mean over the loss tokens of the whole global batch:
 each microbatch adds its gradient of the loss SUM, divided once by the global token count, so any
-number of microbatches gives the same update as one. Dropout draws from (seed, step, microbatch)
-only, so a resumed run repeats the masks of the run it resumes. A step whose loss or gradients are
+number of microbatches gives the same update as one. Each row's dropout masks are drawn from
+(seed, step, its example_index) only (`layers.dropout_per_example`): the same wherever the row sits
+in the global batch, in whichever microbatch, on however many devices and processes, and a resumed
+run repeats the masks of the run it resumes. A step whose loss or gradients are
 not all finite returns the state it was given, unchanged, with metrics["finite"] False.
 
 Each step traces under its mesh (jax.sharding.use_abstract_mesh inside the jitted function, since
@@ -31,6 +34,7 @@ from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
+from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
 from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums,
@@ -39,13 +43,16 @@ from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
 
 BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp")
+TRAIN_KEYS = BATCH_KEYS + ("example_index",)  # the train step's: the examples' ids key their dropout masks
 _DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
 
 
-def dropout_key(seed: int, step: jax.Array, microbatch: jax.Array) -> jax.Array:
-    """The dropout key of one microbatch of one step: a function of (seed, step, microbatch) only."""
+def dropout_key(seed: int, step: jax.Array) -> jax.Array:
+    """The dropout key of one step: a function of (seed, step) only. The model's dropout layers fold
+    each row's example_index into it (`layers.dropout_per_example`), so no microbatch or place in the
+    batch enters a mask."""
     base = jax.random.fold_in(jax.random.key(seed), _DROPOUT_STREAM)
-    return jax.random.fold_in(jax.random.fold_in(base, step), microbatch)
+    return jax.random.fold_in(base, step)
 
 
 def rng_state(rest: nnx.State, key: jax.Array) -> nnx.State:
@@ -148,9 +155,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         return objective, sums
 
     def accumulate(params, step, parts):
-        def add(carry, indexed):
-            index, part = indexed
-            grads, sums = jax.grad(loss_sum, has_aux=True)(params, part, dropout_key(seed, step, index))
+        def add(carry, part):
+            with dropout_per_example(part["example_index"]):  # each row's masks from its own example's key
+                grads, sums = jax.grad(loss_sum, has_aux=True)(params, part, dropout_key(seed, step))
             grads = jax.lax.with_sharding_constraint(grads, state_sharding.params)
             return jax.tree.map(jnp.add, carry, (grads, sums)), None
 
@@ -162,7 +169,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             if weight:
                 zero_sums[f"{name}_sum"] = jnp.zeros((), jnp.float32)
         zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
-        (grads, sums), _ = jax.lax.scan(add, zero, (jnp.arange(microbatches), parts))
+        (grads, sums), _ = jax.lax.scan(add, zero, parts)
         return grads, sums
 
     def update(state, grads):
@@ -175,7 +182,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
 
     def train_step(state: TrainState, batch):
         with jax.sharding.use_abstract_mesh(mesh.abstract_mesh):
-            parts = split_microbatches({key: batch[key] for key in BATCH_KEYS}, microbatches)
+            parts = split_microbatches({key: batch[key] for key in TRAIN_KEYS}, microbatches)
             grad_sum, sums = accumulate(state.params, state.step, parts)
             count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
             grads = jax.tree.map(lambda g: g / count, grad_sum)

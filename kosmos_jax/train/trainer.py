@@ -37,7 +37,7 @@ from kosmos_jax.train.mesh import batch_sharding, make_mesh
 from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state, split_model
-from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step
+from kosmos_jax.train.step import BATCH_KEYS, TRAIN_KEYS, make_eval_step, make_train_step
 from kosmos_jax.train.task import Task, check_batch_layout
 from kosmos_jax.workdir.checkpoints import Checkpoints
 from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE
@@ -107,7 +107,7 @@ def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
             "dataset_dir": str(dataset.dir), "model": model_cfg.to_hf_dict(),
             "connector": {"grid_code": model_cfg.connector_grid_code},  # changes the forward pass; not in to_hf_dict
             "runtime": {"compute_dtype": model_cfg.compute_dtype},
-            "rng": {"seed": config.train.seed, "dropout": "fold_in(fold_in(key(seed), stream), step), per microbatch"}}
+            "rng": {"seed": config.train.seed, "dropout": "fold_in(fold_in(key(seed), stream), step), each row's mask by its example_index"}}
 
 
 # What a description without a field stands for: runs made before the connector options, and the
@@ -193,7 +193,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
         init_state=lambda: init_train_state(initial_params(config, model_cfg, tokenizer), tx, mesh),
         abstract_state=lambda: abstract_train_state(model_cfg, tx, mesh),
         train_step=lambda state, host: train_step(state, distributed.process_batch(
-            {k: host[k] for k in BATCH_KEYS}, sharding)),
+            {k: host[k] for k in TRAIN_KEYS}, sharding)),
         step_record=step_record,
         describe=lambda host: data_lib.describe_examples(splits["train"], host["example_index"]),
         test_record=test_record,
