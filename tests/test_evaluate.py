@@ -352,3 +352,17 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     assert vp.main([f"--workdir={workdir}", "--steps=0"]) == 1 and "steps=0" in capsys.readouterr().err
     assert vp.main([f"--workdir={workdir}", "--steps=1", "--batch-size=4", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["steps"] == 1
+
+
+def test_the_angle_probe_reads_every_test_view_of_the_trained_and_untrained_tower(workdir, capsys):
+    from kosmos_jax.experiments import angle_probe as ap
+
+    result = ap.angle_probe(workdir, examples=8)
+    views = {split: len({r["image_index"] for r in open_run(workdir).split(split).examples}) for split in ("train", "test")}
+    assert result["train_views"] == min(8, views["train"]) and result["test_views"] == views["test"]
+    for name in ("trained", "untrained", "constant"):
+        assert 0 <= result[name]["test"] <= 100
+    with pytest.raises(SystemExit):
+        ap.main([f"--workdir={workdir}", "--examples=1"])
+    assert ap.main([f"--workdir={workdir}", "--examples=8", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["step"] == 2
