@@ -139,7 +139,7 @@ def test_a_program_too_large_for_the_chip_reports_what_it_needed():
 def test_bytes_a_device_holds_of_sharded_inputs():
     mesh = make_mesh(1, -1, 1)
     batch = train_compile.batch_spec(_config("tiny"), mesh)  # 8 rows over 8 devices
-    per_row = 224 * 224 * 3 + 96 * (4 + 1 + 1) + 4 + 5 * 4  # image, tokens and masks, length, grasp
+    per_row = 224 * 224 * 3 + 96 * (4 + 1 + 1) + 4 + 5 * 4 + 4  # image, tokens and masks, length, grasp, example_index
     assert train_compile.sharded_bytes(batch) == per_row
 
 
