@@ -11,7 +11,7 @@ from flax import nnx
 
 from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2, weights
-from kosmos_jax.models.connector import cell_centre, cell_index, grid_code, grid_side
+from kosmos_jax.models.connector import cell_centre, cell_index, grasp_cell_tokens, grid_code, grid_side
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import loss, mesh, optimizer, state, step, trainer
 
@@ -145,3 +145,11 @@ def test_a_run_without_a_connector_resumes_and_still_checks_its_model(tmp_path):
     trainer.check_same_run(baseline, dict(baseline), tmp_path)
     with pytest.raises(trainer.RunMismatchError, match="another model"):
         trainer.check_same_run(baseline, {**baseline, "model": {"layers": 3}}, tmp_path)
+
+
+def test_the_grasp_cell_token_is_the_token_of_the_patch_under_the_centre_past_the_class_token():
+    side, width = 4, 3
+    tokens = jnp.arange(2 * (1 + side * side) * width, dtype=jnp.float32).reshape(2, 1 + side * side, width)
+    centres = jnp.asarray([[0.0, 0.0], [0.6, 0.3]])  # cells (0, 0) and (x 2, y 1): indices 0 and 6
+    picked = grasp_cell_tokens(tokens, centres)
+    assert np.array_equal(picked, np.stack([tokens[0, 1], tokens[1, 7]]))

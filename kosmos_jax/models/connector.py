@@ -73,6 +73,13 @@ def cell_index(centres: jax.Array, side: int) -> jax.Array:
     return cell[:, 1] * side + cell[:, 0]
 
 
+def grasp_cell_tokens(tokens: jax.Array, centres: jax.Array) -> jax.Array:
+    """tokens [B, 1 + patches, D] (the class token first), centres [B, 2] in units of the view's side ->
+    [B, D] each example's token of the patch that holds its centre."""
+    cell = 1 + cell_index(centres, grid_side(tokens.shape[1] - 1))
+    return jnp.take_along_axis(tokens, cell[:, None, None], axis=1)[:, 0]
+
+
 def cell_centre(index: jax.Array, side: int) -> jax.Array:
     """[B] row-major patch indices -> [B, 2] their centres (x, y) in units of the view's side."""
     return (jnp.stack([index % side, index // side], axis=-1) + 0.5) / side
