@@ -119,10 +119,11 @@ def tower_angle_sum(features: jax.Array, grasp: jax.Array, image_side: int, loss
 
 
 def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
-    """Loss and accuracy per counted token (0 for a batch without any); so the auxiliary losses summed."""
+    """Loss and accuracy per counted token (0 for a batch without any); so every auxiliary loss summed
+    (a key NAME_sum other than loss_sum, its mean as NAME)."""
     count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
     out = {"loss": sums["loss_sum"] / count, "accuracy": sums["correct"] / count}
-    for name in ("pointing", "patch_angle", "tower_angle"):
-        if f"{name}_sum" in sums:
-            out[name] = sums[f"{name}_sum"] / count
+    for key, total in sums.items():
+        if key.endswith("_sum") and key != "loss_sum":
+            out[key.removesuffix("_sum")] = total / count
     return out

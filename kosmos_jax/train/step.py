@@ -161,14 +161,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             grads = jax.lax.with_sharding_constraint(grads, state_sharding.params)
             return jax.tree.map(jnp.add, carry, (grads, sums)), None
 
-        zero_sums = {"loss_sum": jnp.zeros((), jnp.float32), "correct": jnp.zeros((), jnp.int32),
-                     "tokens": jnp.zeros((), jnp.int32)}
-        if pointing_loss:
-            zero_sums["pointing_sum"] = jnp.zeros((), jnp.float32)
-        for name, weight in (("patch_angle", patch_angle_loss), ("tower_angle", tower_angle_loss)):
-            if weight:
-                zero_sums[f"{name}_sum"] = jnp.zeros((), jnp.float32)
-        zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
+        first = jax.tree.map(lambda x: x[0], parts)
+        sum_shapes = jax.eval_shape(loss_sum, params, first, dropout_key(seed, step))[1]  # whichever sums it adds
+        zero = (jax.tree.map(jnp.zeros_like, params), jax.tree.map(jnp.zeros_like, sum_shapes))
         (grads, sums), _ = jax.lax.scan(add, zero, parts)
         return grads, sums
 
