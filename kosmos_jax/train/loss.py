@@ -14,7 +14,7 @@ import numpy as np
 import optax
 
 from kosmos_jax import geometry
-from kosmos_jax.models.connector import cell_index, grid_side
+from kosmos_jax.models.connector import cell_index, grasp_cell_tokens, grid_side
 
 
 def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> dict[str, jax.Array]:
@@ -57,6 +57,13 @@ def smoothed_angle_sum(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Arra
     return jnp.sum(jnp.where(counted, jnp.where(target_bin >= 0, soft, hard), 0.0))
 
 
+def finite_example_tokens(loss_mask: jax.Array, required: jax.Array) -> jax.Array:
+    """[B] each example's loss-token count where its `required` grasp fields [B, k] are all finite, else 0:
+    an auxiliary loss's weight per example, so that its sum divided by the batch's token count, like
+    the text loss, is a per-token mean, and examples without a target grasp add nothing."""
+    return jnp.where(jnp.isfinite(required).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
+
+
 def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array,
                  queries: int = 0) -> jax.Array:
     """The connector's pointing loss as a sum: for each example, the cross-entropy of every head of every
@@ -69,8 +76,7 @@ def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_m
         log_probs = log_probs[:, :, :queries]
     target = 1 + cell_index(grasp[:, :2] / image_side, side)
     picked = jnp.take_along_axis(log_probs, target[:, None, None, None], axis=-1)[..., 0]
-    weight = jnp.where(jnp.isfinite(grasp[:, :2]).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
-    return -jnp.sum(picked.mean(axis=(1, 2)) * weight)
+    return -jnp.sum(picked.mean(axis=(1, 2)) * finite_example_tokens(loss_mask, grasp[:, :2]))
 
 
 def patch_angle_sum(patch_tokens: jax.Array, angle_rows: jax.Array, grasp: jax.Array, image_side: int,
@@ -81,14 +87,11 @@ def patch_angle_sum(patch_tokens: jax.Array, angle_rows: jax.Array, grasp: jax.A
     cross-entropy of those scores against the grasp's angle bin. It asks the vision tower for the
     orientation at the grasp's patch in the form the decoder answers with; weighted by each example's
     loss tokens as `pointing_sum` is."""
-    side = grid_side(patch_tokens.shape[1] - 1)
-    cell = 1 + cell_index(grasp[:, :2] / image_side, side)
-    picked = jnp.take_along_axis(patch_tokens, cell[:, None, None], axis=1)[:, 0].astype(jnp.float32)
+    picked = grasp_cell_tokens(patch_tokens, grasp[:, :2] / image_side).astype(jnp.float32)
     log_p = jax.nn.log_softmax(picked @ angle_rows.astype(jnp.float32).T, axis=-1)
     target = geometry.encode_angle(jnp.nan_to_num(grasp[:, 4]))
     nll = -jnp.take_along_axis(log_p, target[:, None], axis=-1)[:, 0]
-    weight = jnp.where(jnp.isfinite(grasp).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
-    return jnp.sum(nll * weight)
+    return jnp.sum(nll * finite_example_tokens(loss_mask, grasp))
 
 
 TOWER_ANGLE_RADIUS = 0.5  # of the unit-norm feature, the share the orientation is asked to take
@@ -108,14 +111,11 @@ def tower_angle_sum(features: jax.Array, grasp: jax.Array, image_side: int, loss
     (squared error; 2theta, as a grasp and its half-turn are one). It asks the tower for the
     orientation at the grasp in a smooth, periodic form, which a 256-way answer does not give it;
     weighted by each example's loss tokens as `pointing_sum` is."""
-    side = grid_side(features.shape[1] - 1)
-    cell = 1 + cell_index(grasp[:, :2] / image_side, side)
-    picked = jnp.take_along_axis(features, cell[:, None, None], axis=1)[:, 0].astype(jnp.float32)
+    picked = grasp_cell_tokens(features, grasp[:, :2] / image_side).astype(jnp.float32)
     read = picked @ jnp.asarray(tower_angle_directions(features.shape[-1]))
     theta = jnp.nan_to_num(grasp[:, 4])
     target = TOWER_ANGLE_RADIUS * jnp.stack([jnp.cos(2 * theta), jnp.sin(2 * theta)], axis=-1)
-    weight = jnp.where(jnp.isfinite(grasp).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
-    return jnp.sum(jnp.sum((read - target) ** 2, axis=-1) * weight)
+    return jnp.sum(jnp.sum((read - target) ** 2, axis=-1) * finite_example_tokens(loss_mask, grasp))
 
 
 def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
