@@ -35,13 +35,13 @@ from kosmos_jax.baselines.layers import input_channels
 from kosmos_jax.evaluation.decoding import Decoder
 from kosmos_jax.evaluation.questions import questions
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models.kosmos2 import build
+from kosmos_jax.models.kosmos2 import build, split_model
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train.baseline_task import family_config, initial_state, make_baseline_step
-from kosmos_jax.train.mesh import make_mesh, replicated
+from kosmos_jax.train.mesh import replicated
 from kosmos_jax.train.optimizer import make_optimizer
-from kosmos_jax.train.state import split_model
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 # configs/baselines.py by its path: the name `baselines` alone would find this script

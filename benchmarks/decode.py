@@ -26,13 +26,12 @@ from kosmos_jax.evaluation.prompts import left_padded
 from kosmos_jax.evaluation.questions import questions
 from kosmos_jax.instruct.kinds import TEMPLATES
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models.kosmos2 import build
+from kosmos_jax.models.kosmos2 import build, split_model
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.text import layout
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
-from kosmos_jax.train.mesh import make_mesh
-from kosmos_jax.train.state import split_model
 
 INSTRUCTIONS = ("", "Grasp the black remote control.", "Grasp the handle of the mug.", "Grasp the red object.",
                 TEMPLATES["angle"].format(code=156))

@@ -27,10 +27,11 @@ from flax import nnx
 
 from timing import best_time, matmul_peak  # benchmarks/timing.py, beside this script
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models.kosmos2 import build
-from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.models.kosmos2 import build, split_model
+from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.optimizer import make_optimizer
-from kosmos_jax.train.state import init_train_state, split_model
+from kosmos_jax.train.state import init_train_state
 from kosmos_jax.train.step import logits as model_logits
 from kosmos_jax.train.step import make_train_step
 from kosmos_jax.workdir.checkpoints import Checkpoints

@@ -10,10 +10,10 @@ import pytest
 from flax import nnx
 
 from kosmos_jax.models import config as model_config
-from kosmos_jax.models import kosmos2, weights
+from kosmos_jax.models import kosmos2, mesh, weights
 from kosmos_jax.models.connector import cell_centre, cell_index, grasp_cell_tokens, grid_code, grid_side
 from kosmos_jax.models.preprocess import pixels
-from kosmos_jax.train import loss, mesh, optimizer, state, step, trainer
+from kosmos_jax.train import loss, optimizer, state, step, trainer
 
 TINY = model_config.TINY
 NO_DROPOUT = TINY.replace(text=dataclasses.replace(TINY.text, dropout=0.0, attention_dropout=0.0))
@@ -96,7 +96,7 @@ def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch
                                          b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
     tx, schedule = optimizer.make_optimizer(opt, total_steps=150)
     train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=1, seed=0, pointing_loss=1.0)
-    graphdef, params, rest = state.split_model(kosmos2.build(cfg))
+    graphdef, params, rest = kosmos2.split_model(kosmos2.build(cfg))
     train_state = state.init_train_state(params, tx, on)
     length, count = 3 + cfg.latent_query_num + 2, 16
     tokens = np.full((count, length), 5, np.int32)

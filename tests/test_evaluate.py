@@ -23,11 +23,10 @@ from kosmos_jax.evaluation.instructions import combine, group_instructions
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.evaluation.tally import distinct, markdown, successes
 from kosmos_jax.grasp_text import ParsedGrasp, format_angle
-from kosmos_jax.models.kosmos2 import abstract_model
+from kosmos_jax.models.kosmos2 import abstract_model, split_model
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.text.formatter import parse_target
-from kosmos_jax.train.mesh import make_mesh
 from kosmos_jax.train.metrics_log import read_metrics
-from kosmos_jax.train.state import split_model
 from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]

@@ -78,7 +78,8 @@ def test_microbatches_add_up_to_the_whole_batch_s_step():
 
     from kosmos_jax.baselines.family import BaselineConfig, make_family
     from kosmos_jax.train.baseline_task import initial_state, make_baseline_step
-    from kosmos_jax.train.mesh import make_mesh, replicated
+    from kosmos_jax.models.mesh import make_mesh
+    from kosmos_jax.train.mesh import replicated
     from kosmos_jax.train.optimizer import make_optimizer
 
     spec = importlib.util.spec_from_file_location("baseline_configs", REPO / "configs" / "baselines.py")

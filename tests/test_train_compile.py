@@ -9,10 +9,11 @@ import sys
 
 import pytest
 
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE
 from kosmos_jax.train import compile as train_compile
 from kosmos_jax.train import plan, step
-from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.train.mesh import batch_sharding
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COMMAND = [sys.executable, "-m", "kosmos_jax.train.compile", "--config=configs/kosmos_e.py:tiny"]

@@ -18,11 +18,11 @@ from flax import nnx
 from jax.sharding import PartitionSpec
 
 from kosmos_jax.models import config as model_config
-from kosmos_jax.models import kosmos2
+from kosmos_jax.models import kosmos2, mesh
 from kosmos_jax.models import layers
 from kosmos_jax.models.layers import LayerNorm, dense
 from kosmos_jax.models.preprocess import pixels
-from kosmos_jax.train import loss, mesh, optimizer, state, step
+from kosmos_jax.train import loss, optimizer, state, step
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = model_config.TINY
@@ -70,7 +70,7 @@ def _model(cfg):
 
 @functools.lru_cache(maxsize=None)
 def _params(cfg):
-    _, params, _ = state.split_model(_model(cfg))
+    _, params, _ = kosmos2.split_model(_model(cfg))
     return jax.device_get(params)
 
 

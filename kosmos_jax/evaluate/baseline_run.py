@@ -26,9 +26,9 @@ from kosmos_jax.dataset.inputs import read_photos
 from kosmos_jax.dataset.views import HONEST_TEST_CROP
 from kosmos_jax.evaluation.view_scores import view_results
 from kosmos_jax.instruct.kinds import NON
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train.baseline_task import abstract_state, family_config, load_views
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train.mesh import make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.workdir.checkpoints import Checkpoints, chosen_step
 from kosmos_jax.workdir.files import RunError, read_description, run_task

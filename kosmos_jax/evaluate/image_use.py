@@ -20,10 +20,11 @@ import sys
 import jax
 import numpy as np
 
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import open_run
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step
 
 IMAGES = ("own", "other", "blank")

@@ -25,7 +25,7 @@ from kosmos_jax.experiments import spec
 from kosmos_jax.experiments.spec import ExperimentError
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models.kosmos2 import abstract_model, param_count
-from kosmos_jax.train.mesh import make_mesh
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.task import check_batch_layout
 from kosmos_jax.workdir.model import model_config

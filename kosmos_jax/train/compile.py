@@ -31,9 +31,10 @@ from ml_collections import config_flags
 
 from kosmos_jax.models import config as model_sizes
 from kosmos_jax.models.kosmos2 import param_count
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE
 from kosmos_jax.train import plan, trainer
-from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import TrainState, abstract_train_state
 from kosmos_jax.train.step import make_train_step

@@ -1,11 +1,9 @@
-"""Where the trainer's batches and scalars live on the device mesh (models/mesh.py builds the mesh;
-make_mesh and mesh_shape are imported from there for the trainer's modules)."""
+"""Where the trainer's batches and scalars live on the device mesh (models/mesh.py builds the mesh)."""
 
 from __future__ import annotations
 
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from kosmos_jax.models.mesh import make_mesh, mesh_shape  # noqa: F401  (the trainer's modules import them here)
 from kosmos_jax.models.sharding import mesh_axes_for
 
 

@@ -16,7 +16,7 @@ from flax import nnx
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.kosmos2 import abstract_model, split_model  # noqa: F401  (split_model: used from here)
+from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.sharding import param_shardings
 
 

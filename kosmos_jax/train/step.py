@@ -33,14 +33,14 @@ from flax import nnx
 from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
+from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, split_model
 from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
 from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums,
                                    tower_angle_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
-from kosmos_jax.train.state import TrainState, abstract_train_state, split_model
+from kosmos_jax.train.state import TrainState, abstract_train_state
 
 BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp")
 TRAIN_KEYS = BATCH_KEYS + ("example_index",)  # the train step's: the examples' ids key their dropout masks

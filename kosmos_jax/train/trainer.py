@@ -28,15 +28,16 @@ from flax import nnx
 from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.models import value_embeddings, weights
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.kosmos2 import build
+from kosmos_jax.models.kosmos2 import build, split_model
+from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed
 from kosmos_jax.train.baseline_task import baseline_task
-from kosmos_jax.train.mesh import batch_sharding, make_mesh
+from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
-from kosmos_jax.train.state import abstract_train_state, init_train_state, split_model
+from kosmos_jax.train.state import abstract_train_state, init_train_state
 from kosmos_jax.train.step import BATCH_KEYS, TRAIN_KEYS, make_eval_step, make_train_step
 from kosmos_jax.train.task import Task, check_batch_layout
 from kosmos_jax.workdir.checkpoints import Checkpoints
