@@ -94,8 +94,7 @@ def forward_backward(cfg, batch: dict) -> dict:
 
 
 def checkpoint_save(state, step_seconds: float) -> dict:
-    with tempfile.TemporaryDirectory() as folder:
-        checkpoints = Checkpoints(folder, keep=2)
+    with tempfile.TemporaryDirectory() as folder, Checkpoints(folder, keep=2) as checkpoints:
         times = []
         for step in (1, 2, 3):
             start = time.perf_counter()
@@ -103,7 +102,6 @@ def checkpoint_save(state, step_seconds: float) -> dict:
             blocking = time.perf_counter() - start
             checkpoints.wait()
             times.append((blocking, time.perf_counter() - start))
-        checkpoints.close()
     blocking, total = min(t[0] for t in times), min(t[1] for t in times)
     return {"save_blocking_seconds": round(blocking, 4), "save_total_seconds": round(total, 4),
             "step_seconds": round(step_seconds, 4), "save_total_over_step": round(total / step_seconds, 3)}

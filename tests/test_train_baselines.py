@@ -61,11 +61,8 @@ def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
             (("whole", whole), ("resumed", resumed))}
     assert test["resumed"]["loss"] == test["whole"]["loss"]
     assert test["resumed"]["grasp_accuracy"] == test["whole"]["grasp_accuracy"]
-    checkpoints = Checkpoints(resumed)
-    try:
+    with Checkpoints(resumed) as checkpoints:
         assert 2 in checkpoints.all_steps() and checkpoints.latest_step() == STEPS
-    finally:
-        checkpoints.close()
 
 
 

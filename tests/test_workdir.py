@@ -20,9 +20,8 @@ from kosmos_jax.workdir.run import abstract_params
 def saved_run(workdir, tx, step=3):
     """The train state of a fresh tiny model with `tx`'s state, saved as the trainer saves it."""
     state = init_train_state(split_model(build(TINY, seed=1))[1], tx, make_mesh(1, 1, 1, devices=jax.devices()[:1]))
-    checkpoints = Checkpoints(workdir, asynchronous=False)
-    checkpoints.save(step, state, {"position": 0}, {"step": step})
-    checkpoints.close()
+    with Checkpoints(workdir, asynchronous=False) as checkpoints:
+        checkpoints.save(step, state, {"position": 0}, {"step": step})
     return state
 
 
@@ -37,9 +36,8 @@ def test_the_params_restored_alone_are_those_of_the_full_restore(tmp_path):
     saved = saved_run(tmp_path, tx)
     mesh = make_mesh(1, 2, 1, devices=jax.devices()[:2])  # another mesh than the one saved from
     params = restore_params(tmp_path, 3, abstract_params(TINY, mesh))
-    checkpoints = Checkpoints(tmp_path, asynchronous=False)
-    full, data_state, _ = checkpoints.restore(3, abstract_train_state(TINY, tx, mesh))
-    checkpoints.close()
+    with Checkpoints(tmp_path, asynchronous=False) as checkpoints:
+        full, data_state, _ = checkpoints.restore(3, abstract_train_state(TINY, tx, mesh))
     assert_same_tree(params, full.params)
     assert_same_tree(params, saved.params)
     assert data_state == {"position": 0} and checkpoint_steps(tmp_path) == [3]
@@ -51,10 +49,9 @@ def test_the_optimiser_state_is_not_read(tmp_path):
     # a checkpoint whose optimiser state the reader could not shape (another optimiser's: Lion's one
     # moment, not AdamW's two) still gives its parameters; only the fields asked for come back
     saved = saved_run(tmp_path, optax.lion(1e-4))
-    checkpoints = Checkpoints(tmp_path, asynchronous=False)
     one_device = make_mesh(1, 1, 1, devices=jax.devices()[:1])
-    fields = checkpoints.restore_fields(3, {"params": abstract_params(TINY, one_device)})
-    checkpoints.close()
+    with Checkpoints(tmp_path, asynchronous=False) as checkpoints:
+        fields = checkpoints.restore_fields(3, {"params": abstract_params(TINY, one_device)})
     assert list(fields) == ["params"]
     assert_same_tree(fields["params"], saved.params)
 

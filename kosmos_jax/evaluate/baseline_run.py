@@ -66,11 +66,8 @@ class BaselineRun:
         mesh = make_mesh(1, 1, 1, devices=jax.devices()[:1])
         tx, _ = make_optimizer(self.config.optimizer, self.config.train.steps)  # only to shape the state
         shapes = abstract_state(self.family, tx, mesh)
-        checkpoints = Checkpoints(self.workdir, asynchronous=False)
-        try:
+        with Checkpoints(self.workdir, asynchronous=False) as checkpoints:
             fields = checkpoints.restore_fields(step, {"params": shapes.params, "model_state": shapes.model_state})
-        finally:
-            checkpoints.close()
         return step, fields
 
     def source_folder(self) -> pathlib.Path:

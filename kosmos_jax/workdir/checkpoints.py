@@ -58,7 +58,7 @@ def from_nested(nested: dict, like):
 
 
 class Checkpoints:
-    """The checkpoints of one workdir."""
+    """The checkpoints of one workdir; as a context manager, closed (pending saves finished) on leaving."""
 
     def __init__(self, workdir, keep: int = 3, asynchronous: bool = True):
         self.directory = pathlib.Path(workdir).resolve() / "checkpoints"
@@ -107,17 +107,20 @@ class Checkpoints:
         self.manager.wait_until_finished()
         self.manager.close()
 
+    def __enter__(self) -> Checkpoints:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
 
 def checkpoint_steps(workdir) -> list[int]:
     """The complete checkpoints' steps of `workdir`, oldest first."""
     workdir = pathlib.Path(workdir)
     if not (workdir / "checkpoints").is_dir():
         return []
-    checkpoints = Checkpoints(workdir, asynchronous=False)
-    try:
+    with Checkpoints(workdir, asynchronous=False) as checkpoints:
         return sorted(checkpoints.all_steps())
-    finally:
-        checkpoints.close()
 
 
 def chosen_step(workdir, step: int | None) -> int:
@@ -133,8 +136,5 @@ def chosen_step(workdir, step: int | None) -> int:
 
 def restore_params(workdir, step: int, abstract_params):
     """The parameters of checkpoint `step` of `workdir`, placed as `abstract_params`' shardings say."""
-    checkpoints = Checkpoints(workdir, asynchronous=False)
-    try:
+    with Checkpoints(workdir, asynchronous=False) as checkpoints:
         return checkpoints.restore_fields(step, {"params": abstract_params})["params"]
-    finally:
-        checkpoints.close()
