@@ -63,7 +63,7 @@ def read_answers(workdir: pathlib.Path, step: int, scored: str = "") -> list[dic
     under eval/STEP (e.g. cornell-synthetic-60-seed7, written by evaluate --cornell)."""
     path = workdir / "eval" / str(step) / scored / "answers.jsonl"
     if not path.is_file():
-        source = f" --cornell=..." if scored else ""
+        source = " --cornell=..." if scored else ""
         raise RunError(f"no {path}: score the run first with python -m kosmos_jax.evaluate --workdir={workdir} "
                        f"--step={step}{source}")
     return [json.loads(line) for line in path.read_text().splitlines() if line]

@@ -76,13 +76,13 @@ def with_value_code(embedding: np.ndarray, pieces: list[str], amplitude: float, 
     `angle_kernel_bins` > 0 the angle tokens' codes are that many bins alike (about; the default
     kernel, width/8 harmonics, is 2 to 3 bins at width 128): a wide kernel makes the cross-entropy's
     pull on an angle answer mostly its low harmonics, the coarse orientation."""
+    if angle_kernel_bins < 0:
+        raise ValueError(f"angle_kernel_bins must be >= 0, got {angle_kernel_bins}")
     rows = value_rows(pieces)
     if not rows:
         raise ValueError("model.value_token_code needs value tokens in the vocabulary "
                          "(build the data with --config.data.build.numbers=values)")
     out = np.array(embedding, copy=True)
-    if angle_kernel_bins < 0:
-        raise ValueError(f"angle_kernel_bins must be >= 0, got {angle_kernel_bins}")
     for family, (ids, phases) in rows.items():
         harmonic_width = angle_harmonic_width(angle_kernel_bins) if family == "a" and angle_kernel_bins else None
         out[ids] += amplitude * value_code(phases, embedding.shape[1], harmonic_width).astype(out.dtype)
