@@ -124,3 +124,19 @@ def test_the_tower_angle_loss_reads_the_grasp_patch_as_twice_its_angle():
     elsewhere = float(loss.tower_angle_sum(jnp.asarray(np.roll(features, 1, axis=1)), grasp, 112, mask))
     assert elsewhere == pytest.approx(2 * loss.TOWER_ANGLE_RADIUS ** 2, rel=1e-5)  # a zero read at the grasp's patch
     assert float(loss.tower_angle_sum(jnp.asarray(features), grasp.at[0, 0].set(jnp.nan), 112, mask)) == 0.0
+
+
+def test_the_slot_angle_loss_reads_every_slot_at_unit_norm_as_twice_the_angle():
+    width, theta = 8, 0.4
+    directions = loss.tower_angle_directions(width)
+    on_circle = directions @ (loss.TOWER_ANGLE_RADIUS * np.array([np.cos(2 * theta), np.sin(2 * theta)]))
+    rest = np.linalg.qr(np.c_[directions, np.random.default_rng(1).normal(size=(width, 1))])[0][:, 2]
+    unit = on_circle + rest * np.sqrt(1 - loss.TOWER_ANGLE_RADIUS ** 2)  # norm 1, reads the target exactly
+    slots = np.stack([unit, 7.0 * unit, -unit])[None].astype(np.float32)  # [1, 3 slots, width]
+    grasp = jnp.asarray([[40.0, 50.0, 20.0, 10.0, theta]], jnp.float32)
+    mask = jnp.asarray([[False, True, True, False]])  # 2 loss tokens weigh the example
+    # the first two slots read the target whatever their scale; the third reads its opposite
+    expected = 2 * (2 * loss.TOWER_ANGLE_RADIUS) ** 2 / 3  # 2 loss tokens x the mean over 3 slots
+    assert float(loss.slot_angle_sum(jnp.asarray(slots), grasp, mask)) == pytest.approx(expected, rel=1e-5)
+    assert float(loss.slot_angle_sum(jnp.asarray(slots[:, :2]), grasp, mask)) == pytest.approx(0.0, abs=1e-6)
+    assert float(loss.slot_angle_sum(jnp.asarray(slots), grasp.at[0, 4].set(jnp.nan), mask)) == 0.0

@@ -153,3 +153,35 @@ def test_the_grasp_cell_token_is_the_token_of_the_patch_under_the_centre_past_th
     centres = jnp.asarray([[0.0, 0.0], [0.6, 0.3]])  # cells (0, 0) and (x 2, y 1): indices 0 and 6
     picked = grasp_cell_tokens(tokens, centres)
     assert np.array_equal(picked, np.stack([tokens[0, 1], tokens[1, 7]]))
+
+
+def test_the_train_step_logs_the_tower_and_slot_angle_losses_of_the_model_it_updates():
+    """Step 0's logged auxiliary losses are the loss functions of the initial model's own features and
+    slots (dropout off), per loss token; each is logged only when its weight is set."""
+    cfg = NO_DROPOUT.replace(connector_dense_std=1.0, connector_grid_code=1.0)
+    on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
+    opt = ml_collections.ConfigDict(dict(name="adamw", peak_lr=1e-3, end_lr=1e-3, warmup_steps=0, decay_steps=None,
+                                         b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
+    tx, schedule = optimizer.make_optimizer(opt, total_steps=2)
+    images, grasp, _ = _squares(4, seed=3)
+    grasp[:, 4] = [0.3, -1.0, 1.2, 0.0]
+    length = 3 + cfg.latent_query_num + 2
+    image_mask = np.zeros((4, length), bool)
+    image_mask[:, 2:2 + cfg.latent_query_num] = True
+    loss_mask = np.zeros((4, length), bool)
+    loss_mask[:, -2:] = True
+    batch = dict(image=images, tokens=np.full((4, length), 5, np.int32), loss_mask=loss_mask, image_mask=image_mask,
+                 length=np.full(4, length, np.int32), grasp=grasp, example_index=np.arange(4))
+    model = kosmos2.build(cfg)
+    features = model.vision_model(pixels(images, cfg.vision.image_size))
+    expected = {"tower_angle": loss.tower_angle_sum(features, jnp.asarray(grasp), STORED, jnp.asarray(loss_mask)) / 8,
+                "slot_angle": loss.slot_angle_sum(model.image_to_text_projection(features), jnp.asarray(grasp),
+                                                  jnp.asarray(loss_mask)) / 8}
+    for weights_set in ({"tower_angle_loss": 2.0}, {"tower_angle_loss": 2.0, "slot_angle_loss": 3.0}):
+        train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=2, seed=0, **weights_set)
+        _, params, _ = kosmos2.split_model(model)
+        _, metrics = train_step(state.init_train_state(params, tx, on), batch)
+        logged = {name for name in expected if name in metrics}
+        assert logged == {name.removesuffix("_loss") for name in weights_set}
+        for name in logged:
+            assert float(metrics[name]) == pytest.approx(float(expected[name]), rel=1e-5)

@@ -38,7 +38,7 @@ from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
 from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums,
-                                   tower_angle_sum)
+                                   slot_angle_sum, tower_angle_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
@@ -77,12 +77,15 @@ def image_features(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
     return model.vision_model(pixels(batch["image"], model.config.vision.image_size))
 
 
-def logits(model: Kosmos2, batch: dict[str, jax.Array], features: jax.Array | None = None) -> jax.Array:
+def logits(model: Kosmos2, batch: dict[str, jax.Array], features: jax.Array | None = None,
+           image_embeds: jax.Array | None = None) -> jax.Array:
     """The model's logits [B, L, V] for a batch of stored examples (images as the processor prepares
-    them), from the vision tower's `features` when the caller has them already."""
-    features = image_features(model, batch) if features is None else features
+    them), from the vision tower's `features` or the connector's `image_embeds` when the caller has
+    them already."""
+    if image_embeds is None:
+        features = image_features(model, batch) if features is None else features
+        image_embeds = model.image_to_text_projection(features)
     attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
-    image_embeds = model.image_to_text_projection(features)
     return model(batch["tokens"], attention_mask, batch["image_mask"], image_embeds=image_embeds)
 
 
@@ -106,7 +109,8 @@ def _all_finite(tree) -> jax.Array:
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
                     mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
                     angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0,
-                    pointing_queries: int = 0, tower_angle_loss: float = 0.0) -> Callable:
+                    pointing_queries: int = 0, tower_angle_loss: float = 0.0,
+                    slot_angle_loss: float = 0.0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
@@ -120,7 +124,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     patch_angle: `loss.patch_angle_sum` of the connector's projected image tokens against the angle
     tokens' embedding rows (held fixed for it), added to the loss with that weight. With
     `tower_angle_loss` > 0, also tower_angle: `loss.tower_angle_sum`, the tower's feature at the grasp's
-    patch read as (cos, sin) of twice the angle, added with that weight.
+    patch read as (cos, sin) of twice the angle, added with that weight. With `slot_angle_loss` > 0,
+    also slot_angle: `loss.slot_angle_sum`, the same read of every image slot the decoder gets.
     """
     for name, weight in (("angle_smoothing", angle_smoothing), ("patch_angle_loss", patch_angle_loss)):
         if weight and (angle_ids is None or len(angle_ids) == 0):
@@ -134,7 +139,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     def loss_sum(params, batch, key):
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
         features = image_features(model, batch)
-        scores = logits(model, batch, features)
+        image_embeds = model.image_to_text_projection(features)
+        scores = logits(model, batch, image_embeds=image_embeds)
         sums = token_sums(scores, batch["tokens"], batch["loss_mask"])
         objective = sums["loss_sum"]
         if angle_smoothing:
@@ -152,6 +158,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         if tower_angle_loss:
             sums["tower_angle_sum"] = tower_angle_sum(features, batch["grasp"], side, batch["loss_mask"])
             objective = objective + tower_angle_loss * sums["tower_angle_sum"]
+        if slot_angle_loss:
+            sums["slot_angle_sum"] = slot_angle_sum(image_embeds, batch["grasp"], batch["loss_mask"])
+            objective = objective + slot_angle_loss * sums["slot_angle_sum"]
         return objective, sums
 
     def accumulate(params, step, parts):

@@ -153,7 +153,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                  angle_smoothing=config.train.get("angle_smoothing", 0.0),
                                  patch_angle_loss=config.train.get("patch_angle_loss", 0.0),
                                  pointing_queries=config.train.get("pointing_queries", 0),
-                                 tower_angle_loss=config.train.get("tower_angle_loss", 0.0))
+                                 tower_angle_loss=config.train.get("tower_angle_loss", 0.0),
+                                 slot_angle_loss=config.train.get("slot_angle_loss", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
