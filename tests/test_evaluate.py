@@ -25,6 +25,7 @@ from kosmos_jax.evaluation.tally import distinct, markdown, successes
 from kosmos_jax.grasp_text import ParsedGrasp, format_angle
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.models.value_embeddings import angle_token_ids
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.workdir.run import open_run
@@ -47,6 +48,17 @@ def workdir(tmp_path_factory):
     done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
                       f"--config.data.root={root}", "--config.train.steps=2", "--config.train.checkpoint_every=2",
                       "--config.optimizer.warmup_steps=1")
+    assert done.returncode == 0, done.stderr[-3000:]
+    return workdir
+
+
+@pytest.fixture(scope="session")
+def values_workdir(tmp_path_factory):
+    """A tiny run of two steps whose vocabulary has value tokens (numbers=values), as the demo's has."""
+    workdir, root = tmp_path_factory.mktemp("values_run"), tmp_path_factory.mktemp("values_datasets")
+    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
+                      f"--config.data.root={root}", "--config.data.build.numbers=values", "--config.train.steps=2",
+                      "--config.train.checkpoint_every=2", "--config.optimizer.warmup_steps=1")
     assert done.returncode == 0, done.stderr[-3000:]
     return workdir
 
@@ -353,14 +365,28 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     assert json.loads(capsys.readouterr().out)["steps"] == 1
 
 
-def test_the_angle_probe_reads_every_test_view_of_the_trained_and_untrained_tower(workdir, capsys):
+@pytest.mark.parametrize("run_fixture, places", [("workdir", {"tower", "slots"}),
+                                                  ("values_workdir", {"tower", "slots", "decoder", "answer"})])
+def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_untrained_model(
+        run_fixture, places, request, capsys):
+    """Digit numbers have no angle token: the probe reads the tower and the slots of one example per
+    view; with value tokens, also the decoder at the angle token and the decoder's own answer."""
     from kosmos_jax.experiments import angle_probe as ap
 
+    workdir = request.getfixturevalue(run_fixture)
     result = ap.angle_probe(workdir, examples=8)
-    views = {split: len({r["image_index"] for r in open_run(workdir).split(split).examples}) for split in ("train", "test")}
-    assert result["train_views"] == min(8, views["train"]) and result["test_views"] == views["test"]
-    for name in ("trained", "untrained", "constant"):
-        assert 0 <= result[name]["test"] <= 100
+    run = open_run(workdir)
+    angle_ids = angle_token_ids(run.tokenizer.piece_texts())
+    views = {r["image_index"] for r in run.split("test").examples
+             if not len(angle_ids) or np.isin(r["tokens"][r["loss_mask"]], angle_ids).any()}
+    assert result["test_views"] == len(views) and 2 <= result["train_views"] <= 8
+    for name in ("trained", "untrained"):
+        assert set(result[name]) == places
+        for place in places - {"answer"}:
+            assert 0 <= result[name][place]["test"] <= 100 and 0 <= result[name][place]["angle_share"] <= 1
+        if "answer" in places:
+            assert 1 <= result[name]["answer"]["distinct_test"] <= len(views)
+    assert 0 <= result["constant"]["test"] <= 100
     with pytest.raises(SystemExit):
         ap.main([f"--workdir={workdir}", "--examples=1"])
     assert ap.main([f"--workdir={workdir}", "--examples=8", "--json"]) == 0
