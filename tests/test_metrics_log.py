@@ -16,3 +16,14 @@ def test_step_lines_name_the_auxiliary_losses_the_run_logs(tmp_path, capsys):
     assert lines[0].startswith("step 3/10: loss 1.5000, lr") and "pointing" not in lines[0]
     assert "loss 1.5000, pointing 1.000, tower angle 0.250, lr" in lines[1]
     assert read_metrics(tmp_path)[1]["tower_angle"] == 0.25
+
+
+def test_every_auxiliary_loss_the_train_step_can_add_is_one_the_log_names():
+    import inspect
+
+    from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES
+    from kosmos_jax.train.step import make_train_step
+
+    weights = {name.removesuffix("_loss") for name in inspect.signature(make_train_step).parameters
+               if name.endswith("_loss")}
+    assert weights == set(AUXILIARY_LOSSES)

@@ -77,14 +77,11 @@ def image_features(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
     return model.vision_model(pixels(batch["image"], model.config.vision.image_size))
 
 
-def logits(model: Kosmos2, batch: dict[str, jax.Array], features: jax.Array | None = None,
-           image_embeds: jax.Array | None = None) -> jax.Array:
+def logits(model: Kosmos2, batch: dict[str, jax.Array], image_embeds: jax.Array | None = None) -> jax.Array:
     """The model's logits [B, L, V] for a batch of stored examples (images as the processor prepares
-    them), from the vision tower's `features` or the connector's `image_embeds` when the caller has
-    them already."""
+    them), from the connector's `image_embeds` when the caller has them already."""
     if image_embeds is None:
-        features = image_features(model, batch) if features is None else features
-        image_embeds = model.image_to_text_projection(features)
+        image_embeds = model.image_to_text_projection(image_features(model, batch))
     attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
     return model(batch["tokens"], attention_mask, batch["image_mask"], image_embeds=image_embeds)
 
@@ -133,6 +130,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
                              "numbers=values and the angle code)")
     kernel = jnp.asarray(circular_kernel(len(angle_ids), angle_smoothing)) if angle_smoothing else None
     angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing or patch_angle_loss else None
+    weights = dict(pointing=pointing_loss, patch_angle=patch_angle_loss, tower_angle=tower_angle_loss,
+                   slot_angle=slot_angle_loss)
+    auxiliary = {name: weight for name, weight in weights.items() if weight}  # the losses this step adds
     graphdef, _, rest = split_model(abstract_model(model_config))
     state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
 
@@ -149,18 +149,16 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         if pointing_loss:
             log_probs = model.image_to_text_projection.pointing_log_probs(features)
             sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"], pointing_queries)
-            objective = objective + pointing_loss * sums["pointing_sum"]
         if patch_angle_loss:
             rows = jax.lax.stop_gradient(model.text_model.model.embed_tokens.embedding[...][angle_ids])
             patch_tokens = model.image_to_text_projection.dense(features)
             sums["patch_angle_sum"] = patch_angle_sum(patch_tokens, rows, batch["grasp"], side, batch["loss_mask"])
-            objective = objective + patch_angle_loss * sums["patch_angle_sum"]
         if tower_angle_loss:
             sums["tower_angle_sum"] = tower_angle_sum(features, batch["grasp"], side, batch["loss_mask"])
-            objective = objective + tower_angle_loss * sums["tower_angle_sum"]
         if slot_angle_loss:
             sums["slot_angle_sum"] = slot_angle_sum(image_embeds, batch["grasp"], batch["loss_mask"])
-            objective = objective + slot_angle_loss * sums["slot_angle_sum"]
+        for name, weight in auxiliary.items():
+            objective = objective + weight * sums[f"{name}_sum"]
         return objective, sums
 
     def accumulate(params, step, parts):
@@ -170,9 +168,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             grads = jax.lax.with_sharding_constraint(grads, state_sharding.params)
             return jax.tree.map(jnp.add, carry, (grads, sums)), None
 
-        first = jax.tree.map(lambda x: x[0], parts)
-        sum_shapes = jax.eval_shape(loss_sum, params, first, dropout_key(seed, step))[1]  # whichever sums it adds
-        zero = (jax.tree.map(jnp.zeros_like, params), jax.tree.map(jnp.zeros_like, sum_shapes))
+        zero_sums = {"loss_sum": jnp.zeros((), jnp.float32), "correct": jnp.zeros((), jnp.int32),
+                     "tokens": jnp.zeros((), jnp.int32), **{f"{name}_sum": jnp.zeros((), jnp.float32) for name in auxiliary}}
+        zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
         (grads, sums), _ = jax.lax.scan(add, zero, parts)
         return grads, sums
 
