@@ -32,11 +32,11 @@ from timing import best_time  # benchmarks/timing.py
 from train import full_step, random_batch  # benchmarks/train.py
 from kosmos_jax.baselines.family import make_family
 from kosmos_jax.baselines.layers import input_channels
-from kosmos_jax.evaluation.decoding import Decoder
-from kosmos_jax.evaluation.questions import questions
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train.baseline_task import family_config, initial_state, make_baseline_step

@@ -5,7 +5,7 @@
 
 The `small` model with random weights and the project's tokenizer (trained here on formatted
 answers and instruction sentences, or a run's tokenizer.model), decoded the way
-`python -m kosmos_jax.evaluate` decodes: kosmos_jax.evaluation's Decoder (pixels, image
+`python -m kosmos_jax.evaluate` decodes: kosmos_jax.scoring's Decoder (pixels, image
 embeddings, KV-cache greedy decoding) on individual-mode prompts, each part (location, angle) with
 its own budget. An example is one answer; both decodings make the same number of steps, so the
 ratio is the grammar's cost per step. Compilation is left out (a warm-up call per part).
@@ -21,13 +21,13 @@ import jax
 import numpy as np
 
 from kosmos_jax import grasp_text
-from kosmos_jax.evaluation.decoding import Decoder
-from kosmos_jax.evaluation.prompts import left_padded
-from kosmos_jax.evaluation.questions import questions
 from kosmos_jax.instruct.kinds import TEMPLATES
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.prompts import left_padded
+from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text import layout
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig

@@ -12,9 +12,10 @@ it (tests/test_layout.py checks this):
   dataset       6. the build: views of each protocol, samples, array_record files, grain batches
   models        7. KOSMOS-2 in flax.nnx, weights, constrained decoding
   baselines     7. GR-ConvNet and GG-CNN2, the paper's baselines, on the same views and folds
-  evaluation    8. scores under both protocols: of the baselines, of a model's decoded answers
+  scoring       8. scores under both protocols: of the baselines, of a model's decoded answers;
+                   Fig. 7 drawings
   train         9. the sharded training step, optimiser, checkpoints, the trainer (it scores
-                   decoded grasps with evaluation's code)
+                   decoded grasps with scoring's code)
   evaluate      the command `python -m kosmos_jax.evaluate`: a run's scores, overlays
   experiments, predict  folds and data sizes; one grasp from a trained run (GraspPredictor)
   demo, cli     `make demo`; the `kosmos-grasp` command in front of every entry point

@@ -33,11 +33,11 @@ from kosmos_jax.data import cornell
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import views
 from kosmos_jax.evaluate.__main__ import evaluate, parse_args, write
-from kosmos_jax.workdir.run import open_run
-from kosmos_jax.evaluation import baselines, scoring
-from kosmos_jax.evaluation.cornell_examples import cornell_examples
 from kosmos_jax.experiments import no_learning, runner, spec
 from kosmos_jax.metrics import BACKENDS
+from kosmos_jax.scoring import baselines, fold_scores
+from kosmos_jax.scoring.cornell_examples import cornell_examples
+from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_CORNELL = REPO.parent / "shared" / "data" / "cornell"
@@ -64,11 +64,11 @@ def evaluate_source(name: str, root: pathlib.Path, seed: int, k: int = 5) -> lis
     for protocol in views.PROTOCOLS:
         test_views = views.evaluation_views(photos, protocol, seed=seed, progress=True)
         for scheme in ("image", "object"):
-            folds = scoring.view_folds(test_views, scheme, protocol, object_of, k=k, seed=seed)
+            folds = fold_scores.view_folds(test_views, scheme, protocol, object_of, k=k, seed=seed)
             for backend in BACKENDS:
                 for predictor, predict in baselines.BASELINES.items():
                     prediction = predict(test_views.grasps, test_views.mask)
-                    result = scoring.score(prediction, test_views, folds, protocol, backend, k)
+                    result = fold_scores.score(prediction, test_views, folds, protocol, backend, k)
                     rows.append(
                         dict(data=name, photos=len(photos), protocol=protocol, split=scheme, backend=backend,
                              scene="all", predictor=predictor, mean=round(result.mean, 2), std=round(result.std, 2),

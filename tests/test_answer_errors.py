@@ -10,8 +10,8 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.evaluate import answer_errors as errors_lib
 from kosmos_jax.evaluate import part_oracles as oracles
-from kosmos_jax.evaluation.instructions import Instruction
-from kosmos_jax.evaluation.tally import successes
+from kosmos_jax.scoring.instructions import Instruction
+from kosmos_jax.scoring.tally import successes
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.workdir.files import RunError
 

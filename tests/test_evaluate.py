@@ -19,13 +19,13 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.evaluate.__main__ import main
-from kosmos_jax.evaluation.instructions import combine, group_instructions
-from kosmos_jax.evaluation.model_scores import GraspEvaluation
-from kosmos_jax.evaluation.tally import distinct, markdown, successes
 from kosmos_jax.grasp_text import ParsedGrasp, format_angle
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_embeddings import angle_token_ids
+from kosmos_jax.scoring.instructions import combine, group_instructions
+from kosmos_jax.scoring.model_scores import GraspEvaluation
+from kosmos_jax.scoring.tally import distinct, markdown, successes
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.workdir.run import open_run

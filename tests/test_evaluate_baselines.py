@@ -20,7 +20,7 @@ import pytest
 from kosmos_jax.baselines.inputs import ViewArrays
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.evaluate.__main__ import evaluate, main, parse_args
-from kosmos_jax.evaluation.view_scores import view_results
+from kosmos_jax.scoring.view_scores import view_results
 from kosmos_jax.train.metrics_log import read_metrics
 
 pytestmark = pytest.mark.xdist_group("evaluate_baselines")

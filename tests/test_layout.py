@@ -20,7 +20,7 @@ LAYERS = (
     ("text",),
     ("dataset",),
     ("models", "baselines"),
-    ("evaluation",),  # above train: the trainer scores decoded grasps; evaluation never imports train
+    ("scoring",),  # above train: the trainer scores decoded grasps; scoring never imports train
     ("workdir",),  # the run layer: a workdir's files, model, checkpoints (params-only restore), export
     ("train",),
     ("evaluate",),

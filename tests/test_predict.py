@@ -21,12 +21,12 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.dataset.views import evaluation_views
-from kosmos_jax.evaluation.overlay import overlay, write_png
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.predict import (GraspPredictor, ImageError, ImageWarning, InstructionError, PredictError,
                                 RunFolderError)
 from kosmos_jax.predict.framing import frame
 from kosmos_jax.predict.images import load_image
+from kosmos_jax.scoring.drawing import overlay, write_png
 from kosmos_jax.workdir.export import export_pretrained
 from kosmos_jax.workdir.run import open_run
 

@@ -37,10 +37,10 @@ import sys
 import time
 
 from kosmos_jax.evaluate.overlays import write_overlays
-from kosmos_jax.evaluation.cornell_examples import cornell_examples
-from kosmos_jax.evaluation.model_scores import GraspEvaluation
-from kosmos_jax.evaluation.tally import markdown
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.scoring.cornell_examples import cornell_examples
+from kosmos_jax.scoring.model_scores import GraspEvaluation
+from kosmos_jax.scoring.tally import markdown
 from kosmos_jax.workdir.files import RunError, read_description, run_task
 from kosmos_jax.workdir.run import open_run
 

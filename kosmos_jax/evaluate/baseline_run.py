@@ -8,7 +8,7 @@ views must match what training recorded), or with --cornell every photo of a Cor
 cut as KOSMOS-E's --cornell examples are (dataset.views.HONEST_TEST_CROP: the un-rotated
 image-centre crop; honest protocol). The checkpoint's parameters and BatchNorm statistics give one
 grasp a view (baselines.family.predict_views: the peak of the blurred quality map);
-evaluation.view_scores scores them with the tally and protocol KOSMOS-E's answers go through.
+scoring.view_scores scores them with the tally and protocol KOSMOS-E's answers go through.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from kosmos_jax.baselines.family import Family, make_family, predict_views
 from kosmos_jax.baselines.inputs import ViewArrays, make_views, needs_depth
 from kosmos_jax.dataset.inputs import read_photos
 from kosmos_jax.dataset.views import HONEST_TEST_CROP
-from kosmos_jax.evaluation.view_scores import view_results
+from kosmos_jax.scoring.view_scores import view_results
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train.baseline_task import abstract_state, family_config, load_views

@@ -1,5 +1,5 @@
 """`evaluate --overlays=N`: the first N scored views of each instruction kind, drawn as the paper's
-Fig. 7 (evaluation.overlay): the constrained answer's grasp in red, the instruction's ground truths
+Fig. 7 (scoring.drawing): the constrained answer's grasp in red, the instruction's ground truths
 in blue, the instruction beneath; one grid per kind, WORKDIR/eval/STEP/overlays/KIND.png.
 
 Drawn from what the evaluation wrote (its answers, one row per example) and the same examples it
@@ -14,12 +14,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from kosmos_jax.workdir.run import open_run
-from kosmos_jax.evaluation.cornell_examples import cornell_examples
-from kosmos_jax.evaluation.grasp_size import borrowed_size
-from kosmos_jax.evaluation.instructions import combine, group_instructions
-from kosmos_jax.evaluation.overlay import NO_INSTRUCTION, grid, overlay, write_png
+from kosmos_jax.scoring.cornell_examples import cornell_examples
+from kosmos_jax.scoring.drawing import NO_INSTRUCTION, grid, overlay, write_png
+from kosmos_jax.scoring.grasp_size import borrowed_size
+from kosmos_jax.scoring.instructions import combine, group_instructions
 from kosmos_jax.text.formatter import parse_target
+from kosmos_jax.workdir.run import open_run
 
 ZOOM = 2  # 224 views drawn at 448, so that the captions are legible
 COLUMNS = 4

@@ -22,12 +22,12 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from kosmos_jax.evaluate.answer_errors import read_answers, scored_run_arguments
+from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions
+from kosmos_jax.text.formatter import FormatConfig, parse_target
 from kosmos_jax.workdir.checkpoints import chosen_step
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import open_run
-from kosmos_jax.evaluation import tally
-from kosmos_jax.evaluation.instructions import Instruction, combine, group_instructions
-from kosmos_jax.text.formatter import FormatConfig, parse_target
 
 SCORES = ("model", "true_angle", "true_centre")
 

@@ -6,7 +6,7 @@ and per scene) -> WORKDIR/results.json and WORKDIR/table.md (and the data-size p
 Aggregates every record of the experiment found under WORKDIR, whichever process wrote it (the
 folds of a SLURM array meet here); the chosen folds (config.folds) not recorded yet are listed as
 "missing". The std is over
-folds (numpy's, ddof=0, as evaluation.scoring reports the baselines). The no-learning predictors
+folds (numpy's, ddof=0, as scoring.fold_scores reports the baselines). The no-learning predictors
 get rows of their own, from the KOSMOS-E arms' records; arms whose test instructions are the same
 on every fold (records' digests) share them, so a table shows each distinct test set once.
 """

@@ -2,8 +2,8 @@
 
     figures = score(records, protocol, image_size)   # {"image_centre": {...}, "gt_mean_oracle": {...}}
 
-The instructions are the evaluation's (evaluation.instructions.group_instructions of the test
-split's records), the predictors evaluation.baselines', the metric and protocol the evaluation's
+The instructions are the evaluation's (scoring.instructions.group_instructions of the test
+split's records), the predictors scoring.baselines', the metric and protocol the evaluation's
 tally: so a row of these sits beside the model's on the same footing. An angle instruction states
 its angle; both predictors use it there, as the model's answer does (its answer is the centre only).
 `digest` names the test instructions, so runs scored on the same ones can share these rows.
@@ -15,9 +15,9 @@ import hashlib
 
 import numpy as np
 
-from kosmos_jax.evaluation import tally
-from kosmos_jax.evaluation.baselines import BASELINES, ground_truth_mean, image_centre
-from kosmos_jax.evaluation.instructions import Instruction, group_instructions, instructed_angle, text
+from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.baselines import BASELINES, ground_truth_mean, image_centre
+from kosmos_jax.scoring.instructions import Instruction, group_instructions, instructed_angle, text
 
 PREDICTORS = tuple(BASELINES)  # ("image_centre", "gt_mean_oracle")
 

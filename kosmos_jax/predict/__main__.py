@@ -46,9 +46,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def run(args: argparse.Namespace) -> dict:
     """Load, predict, draw: the printed record."""
-    from kosmos_jax.evaluation.overlay import NO_INSTRUCTION, overlay, write_png
     from kosmos_jax.predict.images import load_image
     from kosmos_jax.predict.predictor import GraspPredictor
+    from kosmos_jax.scoring.drawing import NO_INSTRUCTION, overlay, write_png
 
     photo = load_image(args.image)  # bad images fail before the model is loaded
     if args.workdir:

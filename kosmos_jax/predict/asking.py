@@ -3,7 +3,7 @@
 The prompt of each part is layout.py's: <s><image> 64 slots </image>, the instruction encoded on
 its own, then the part's cue encoded on its own (individual outputs; none in joint mode), so the
 model sees the tokens it was trained on up to where its answer starts. What is asked follows the
-evaluation (evaluation.questions): a whole grasp, or the centre alone for an angle instruction
+evaluation (scoring.questions): a whole grasp, or the centre alone for an angle instruction
 (one that states its angle as a code, "... a rotation angle of a_156 radians."), whose angle is
 the one it states. No instruction at all (None) is KOSMOS-E's NON kind: the prompt holds the image
 and the cue only, as the build writes NON examples; an empty string is refused as a likely mistake.
@@ -18,9 +18,9 @@ import dataclasses
 
 import numpy as np
 
-from kosmos_jax.evaluation.instructions import instructed_angle
-from kosmos_jax.evaluation.questions import Question
 from kosmos_jax.predict.errors import InstructionError
+from kosmos_jax.scoring.instructions import instructed_angle
+from kosmos_jax.scoring.questions import Question
 from kosmos_jax.text import formatter, layout
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import Tokenizer

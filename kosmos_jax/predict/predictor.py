@@ -7,7 +7,7 @@
 
 Each photo is brought to the model's view as the run's test views were made (framing.py), each
 instruction to the prompts training laid out (asking.py); the answers are decoded greedily with
-the KV cache under the grasp grammar (evaluation.decoding, one jitted program per batch shape and
+the KV cache under the grasp grammar (scoring.decoding, one jitted program per batch shape and
 question), parsed and combined as the evaluation does, and the grasp is mapped back to the
 photo's pixels. Batches are padded to one of `batch_sizes` (more rows are decoded in chunks of the
 largest) and prompts left-padded to a multiple of PROMPT_STEP tokens, so a new batch length or
@@ -27,10 +27,6 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from kosmos_jax.evaluation.decoding import Decoder
-from kosmos_jax.evaluation.instructions import Instruction, combine
-from kosmos_jax.evaluation.prompts import left_padded
-from kosmos_jax.evaluation.questions import questions
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
@@ -40,6 +36,10 @@ from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderErr
 from kosmos_jax.predict.framing import PHOTO_SHORT_SIDE, Framing, frame
 from kosmos_jax.predict.images import load_image
 from kosmos_jax.predict.sizes import CORNELL_SIZE, training_size
+from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.instructions import Instruction, combine
+from kosmos_jax.scoring.prompts import left_padded
+from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
 from kosmos_jax.workdir.files import RunError

@@ -1,7 +1,7 @@
 """The opening and jaw size of a predicted grasp whose answer does not state them (XYA answers).
 
 A new photo has no ground truth to borrow them from, so the predictor borrows the protocol's
-size (evaluation.grasp_size) of the run's own training views, averaged: what the metric would
+size (scoring.grasp_size) of the run's own training views, averaged: what the metric would
 have lent a prediction on a typical training view. Measured on at most SAMPLED examples spread
 evenly over the split. Without the run's dataset (or for an imported folder) CORNELL_SIZE stands in.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kosmos_jax.evaluation.grasp_size import borrowed_size
+from kosmos_jax.scoring.grasp_size import borrowed_size
 
 SAMPLED = 512
 # Mean opening and jaw, in pixels, of Cornell's positive rectangles, measured on the 100 photos of

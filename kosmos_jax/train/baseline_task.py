@@ -25,8 +25,8 @@ from jax.sharding import NamedSharding, PartitionSpec
 from kosmos_jax.baselines import inputs
 from kosmos_jax.baselines.family import BaselineConfig, make_family
 from kosmos_jax.data import cornell
-from kosmos_jax.evaluation.scoring import WH_POLICY
 from kosmos_jax.metrics import grasp_success
+from kosmos_jax.scoring.fold_scores import WH_POLICY
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState

@@ -25,11 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from kosmos_jax.evaluation.model_scores import GraspEvaluation
 from kosmos_jax.models import value_embeddings, weights
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed

@@ -15,10 +15,10 @@ import shutil
 import jax
 from flax import nnx
 
-from kosmos_jax.evaluation.decoding import fixed_streams
 from kosmos_jax.models import weights
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.scoring.decoding import fixed_streams
 from kosmos_jax.workdir.files import TOKENIZER_FILE
 from kosmos_jax.workdir.run import open_run
 

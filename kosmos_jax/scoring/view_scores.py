@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kosmos_jax.evaluation import tally
-from kosmos_jax.evaluation.instructions import Instruction
 from kosmos_jax.instruct.kinds import NON
+from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.instructions import Instruction
 
 SCENE = "single"
 PART = "grasp"

@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from kosmos_jax.evaluation.instructions import text
+from kosmos_jax.scoring.instructions import text
 from kosmos_jax.text.tokenizer import Tokenizer
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kosmos_jax.evaluation.scoring import WH_POLICY
+from kosmos_jax.scoring.fold_scores import WH_POLICY
 
 
 def borrowed_size(truths, protocol: str) -> tuple[float, float]:

@@ -13,7 +13,7 @@ from kosmos_jax.data import cornell
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.dataset import views
-from kosmos_jax.evaluation import baselines, scoring
+from kosmos_jax.scoring import baselines, fold_scores
 from kosmos_jax.experiments import spec
 
 _spec = importlib.util.spec_from_file_location("demo_settings", pathlib.Path(__file__).parents[1] / "configs" / "demo.py")
@@ -92,10 +92,10 @@ def test_score_counts_per_fold_and_failures_by_protocol():
     pred = np.tile([[100.0, 100.0, 0.0]], (10, 1))
     pred[:3] = np.nan  # three unparseable answers
     folds = np.arange(10) % 5
-    honest = scoring.score(pred, v, folds, "honest")
+    honest = fold_scores.score(pred, v, folds, "honest")
     assert honest.failures == pytest.approx(0.3)
     assert honest.per_fold == [50.0, 50.0, 50.0, 100.0, 100.0]  # views 0, 1, 2 sit in folds 0, 1, 2
-    paper = scoring.score(pred, v, folds, "paper")  # the ground-truth mean stands in for failures
+    paper = fold_scores.score(pred, v, folds, "paper")  # the ground-truth mean stands in for failures
     assert paper.per_fold == [100.0] * 5 and paper.mean == 100.0 and paper.std == 0.0
 
 
@@ -104,14 +104,14 @@ def test_views_without_ground_truth_and_empty_folds_are_counted():
     v.mask[[1, 4, 9]] = False  # views 4 and 9 are all of fold 4; view 1 is half of fold 1
     pred = np.tile([[100.0, 100.0, 0.0]], (10, 1))
     pred[6] = [150.0, 100.0, 0.0]  # a miss in fold 1
-    result = scoring.score(pred, v, np.arange(10) % 5, "honest")
+    result = fold_scores.score(pred, v, np.arange(10) % 5, "honest")
     assert result.per_fold == [100.0, 0.0, 100.0, 100.0]  # fold 1 is view 6 alone; fold 4 has nothing
     assert (result.views, result.skipped_views, result.empty_folds) == (7, 3, 1)
     assert result.mean == 75.0
-    full = scoring.score(pred, crafted_views(), np.arange(10) % 5, "honest")
+    full = fold_scores.score(pred, crafted_views(), np.arange(10) % 5, "honest")
     assert (full.views, full.skipped_views, full.empty_folds) == (10, 0, 0)
     v.mask[:] = False
-    nothing = scoring.score(pred, v, np.arange(10) % 5, "honest")
+    nothing = fold_scores.score(pred, v, np.arange(10) % 5, "honest")
     assert nothing.per_fold == [] and nothing.empty_folds == 5 and math.isnan(nothing.mean)
 
 
@@ -127,12 +127,12 @@ def test_demo_footnote_names_skipped_views_and_empty_folds():
 def test_honest_folds_keep_photos_and_objects_together():
     v = crafted_views()
     v.photo_id = [f"p{i // 2}" for i in range(10)]  # two views per photo
-    folds = scoring.view_folds(v, "image", "honest")
+    folds = fold_scores.view_folds(v, "image", "honest")
     assert all(folds[i] == folds[i + 1] for i in range(0, 10, 2))
     object_of = {f"p{i}": i % 5 for i in range(5)}
-    assert len(set(scoring.view_folds(v, "object", "honest", object_of).tolist())) == 5
+    assert len(set(fold_scores.view_folds(v, "object", "honest", object_of).tolist())) == 5
     with pytest.raises(ValueError, match="object"):
-        scoring.view_folds(v, "object", "honest")
+        fold_scores.view_folds(v, "object", "honest")
 
 
 def demo_config(tmp_path, **overrides):

@@ -23,12 +23,12 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from jax.sharding import Mesh
 
-from kosmos_jax.evaluation import tally
-from kosmos_jax.evaluation.decoding import Decoder
-from kosmos_jax.evaluation.instructions import Instruction, combine, group_instructions, text
-from kosmos_jax.evaluation.prompts import left_padded, prompt, target_ids
-from kosmos_jax.evaluation.questions import Question, questions
 from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
+from kosmos_jax.scoring.prompts import left_padded, prompt, target_ids
+from kosmos_jax.scoring.questions import Question, questions
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import Tokenizer
 

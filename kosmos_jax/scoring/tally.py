@@ -12,10 +12,10 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from kosmos_jax.evaluation.instructions import Instruction, combine
-from kosmos_jax.evaluation.scoring import WH_POLICY
 from kosmos_jax.grasp_text import ParsedGrasp
 from kosmos_jax.metrics import grasp_success
+from kosmos_jax.scoring.fold_scores import WH_POLICY
+from kosmos_jax.scoring.instructions import Instruction, combine
 
 
 def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol: str,
