@@ -17,6 +17,7 @@ it (tests/test_layout.py checks this):
   train         9. the sharded training step, optimiser, checkpoints, the trainer (it scores
                    decoded grasps with scoring's code)
   evaluate      the command `python -m kosmos_jax.evaluate`: a run's scores, overlays
+  diagnostics   why a run scores what it scores (answer errors, part oracles, image use, probes)
   experiments, predict  folds and data sizes; one grasp from a trained run (GraspPredictor)
   demo, cli     `make demo`; the `kosmos-grasp` command in front of every entry point
 

@@ -1,9 +1,9 @@
-"""experiments.angle_probe: a ridge readout of twice the grasp angle, scored within 30 degrees."""
+"""diagnostics.angle_probe: a ridge readout of twice the grasp angle, scored within 30 degrees."""
 
 import numpy as np
 import pytest
 
-from kosmos_jax.experiments import angle_probe as probe
+from kosmos_jax.diagnostics import angle_probe as probe
 
 
 def test_a_readout_of_features_that_hold_the_angle_finds_it_and_noise_does_not():

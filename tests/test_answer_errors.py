@@ -1,5 +1,5 @@
-"""evaluate.answer_errors: centre distances and angle errors of decoded answers against their targets;
-evaluate.part_oracles: the answers scored again with the centre or the angle from the ground truth."""
+"""diagnostics.answer_errors: centre distances and angle errors of decoded answers against their targets;
+diagnostics.part_oracles: the answers scored again with the centre or the angle from the ground truth."""
 
 import json
 import math
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from kosmos_jax import geometry
-from kosmos_jax.evaluate import answer_errors as errors_lib
-from kosmos_jax.evaluate import part_oracles as oracles
+from kosmos_jax.diagnostics import answer_errors as errors_lib
+from kosmos_jax.diagnostics import part_oracles as oracles
 from kosmos_jax.scoring.instructions import Instruction
 from kosmos_jax.scoring.tally import successes
 from kosmos_jax.text.formatter import FormatConfig

@@ -126,7 +126,7 @@ def redrawn(shapes, seed):
 
 def test_part_oracles_score_the_answers_as_the_evaluation_does_and_only_raise_them(evaluated, workdir):
     stdout, folder = evaluated
-    done = run_module("kosmos_jax.evaluate.part_oracles", f"--workdir={workdir}", "--json")
+    done = run_module("kosmos_jax.diagnostics.part_oracles", f"--workdir={workdir}", "--json")
     assert done.returncode == 0, done.stderr[-3000:]
     figures = json.loads(done.stdout.strip().splitlines()[-1])
     results = json.loads(stdout.strip().splitlines()[-1])
@@ -305,7 +305,7 @@ def test_every_photo_of_a_cornell_folder_is_scored(workdir, tmp_path):
 
 
 def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(workdir, capsys):
-    from kosmos_jax.evaluate import image_use
+    from kosmos_jax.diagnostics import image_use
 
     np.testing.assert_array_equal(image_use.other_images(np.arange(3)), [1, 2, 0])
     # rows of one photo side by side (its centre and angle parts) never get their own image back
@@ -340,7 +340,7 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     import optax
     from flax import nnx
 
-    from kosmos_jax.experiments import vision_probe as vp
+    from kosmos_jax.diagnostics import vision_probe as vp
     from kosmos_jax.train import data as data_lib
 
     run = open_run(workdir)
@@ -371,7 +371,7 @@ def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_
         run_fixture, places, request, capsys):
     """Digit numbers have no angle token: the probe reads the tower and the slots of one example per
     view; with value tokens, also the decoder at the angle token and the decoder's own answer."""
-    from kosmos_jax.experiments import angle_probe as ap
+    from kosmos_jax.diagnostics import angle_probe as ap
 
     workdir = request.getfixturevalue(run_fixture)
     result = ap.angle_probe(workdir, examples=8)

@@ -24,6 +24,7 @@ LAYERS = (
     ("workdir",),  # the run layer: a workdir's files, model, checkpoints (params-only restore), export
     ("train",),
     ("evaluate",),
+    ("diagnostics",),  # why a run scores what it scores: answer errors, part oracles, image use, probes
     ("experiments", "predict"),  # experiments: train + evaluate per fold; predict: one grasp from a trained run
     ("demo", "cli"),
 )

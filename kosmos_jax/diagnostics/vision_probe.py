@@ -3,7 +3,7 @@ model config with a linear readout, trained on the run's training split to find 
 centre directly (AdamW), then scored on the test split against the constant guess of
 the training answers' mean centre.
 
-    python -m kosmos_jax.experiments.vision_probe --workdir=runs/demo [--steps=300] [--readout=patches] [--json]
+    python -m kosmos_jax.diagnostics.vision_probe --workdir=runs/demo [--steps=300] [--readout=patches] [--json]
 
 The readout `patches` regresses the centre from every patch feature (a position-aware linear map),
 `cls` from the class token alone, and `cells` scores each patch with one shared linear map and
@@ -131,7 +131,7 @@ def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.experiments.vision_probe",
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.vision_probe",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--workdir", required=True, help="a KOSMOS-E run: its config, dataset and splits")
     parser.add_argument("--steps", type=int, default=300)

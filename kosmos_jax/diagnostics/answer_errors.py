@@ -1,6 +1,6 @@
 """How far a run's decoded answers fall from their targets: centre distance and angle error.
 
-    python -m kosmos_jax.evaluate.answer_errors --workdir=runs/demo [--step=N] [--scored=FOLDER] [--json]
+    python -m kosmos_jax.diagnostics.answer_errors --workdir=runs/demo [--step=N] [--scored=FOLDER] [--json]
 
 Reads WORKDIR/eval/STEP/answers.jsonl (run `python -m kosmos_jax.evaluate --workdir=...` first).
 Each answer is compared with its example's own target grasp (one ground truth of the view, the one
@@ -82,7 +82,7 @@ def scored_run_arguments(module: str, doc: str, argv=None, scored: bool = False)
 
 
 def main(argv=None) -> None:
-    args = scored_run_arguments("kosmos_jax.evaluate.answer_errors", __doc__, argv, scored=True)
+    args = scored_run_arguments("kosmos_jax.diagnostics.answer_errors", __doc__, argv, scored=True)
     workdir = pathlib.Path(args.workdir)
     try:
         config = FormatConfig(**read_description(workdir)["data_identity"]["format"])

@@ -3,7 +3,7 @@ example with its own image, with another photo's image (the next row of the batc
 differs, or one of the split's first two photos where the whole batch is one photo's) and with a
 blank image.
 
-    python -m kosmos_jax.evaluate.image_use --workdir=runs/demo [--step=N] [--split=test] [--batches=4] [--json]
+    python -m kosmos_jax.diagnostics.image_use --workdir=runs/demo [--step=N] [--split=test] [--batches=4] [--json]
 
 A model that answers from what it sees has a clearly lower loss on its own images than on another
 photo's. Equal losses mean its answers do not depend on the photo: it has learned the marginal
@@ -108,7 +108,7 @@ def summary(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate.image_use", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.image_use", description=__doc__.split("\n")[0])
     parser.add_argument("--workdir", required=True)
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
     parser.add_argument("--split", default="test")

@@ -1,6 +1,6 @@
 """What each half of a run's answers costs it: its grasps scored again with one half from the truth.
 
-    python -m kosmos_jax.evaluate.part_oracles --workdir=runs/demo [--step=N] [--json]
+    python -m kosmos_jax.diagnostics.part_oracles --workdir=runs/demo [--step=N] [--json]
 
 Reads WORKDIR/eval/STEP/answers.jsonl (run `python -m kosmos_jax.evaluate --workdir=...` first) and
 the test split's instructions, and scores three grasps an instruction with the run's protocol:
@@ -21,7 +21,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from kosmos_jax.evaluate.answer_errors import read_answers, scored_run_arguments
+from kosmos_jax.diagnostics.answer_errors import read_answers, scored_run_arguments
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions
 from kosmos_jax.text.formatter import FormatConfig, parse_target
@@ -75,7 +75,7 @@ def part_oracles(records: Sequence[Mapping], rows: Sequence[Mapping], config: Fo
 
 
 def main(argv=None) -> None:
-    args = scored_run_arguments("kosmos_jax.evaluate.part_oracles", __doc__, argv)
+    args = scored_run_arguments("kosmos_jax.diagnostics.part_oracles", __doc__, argv)
     workdir = pathlib.Path(args.workdir)
     try:
         run = open_run(workdir)

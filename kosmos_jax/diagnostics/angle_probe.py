@@ -14,7 +14,7 @@ share the grasp's patch cell explains. A readout can find a direction that holds
 variance; a decoder trained by gradient descent learns the large ones first. The untrained model the
 run started from (its seed) and the training views' constant mean orientation are the baselines.
 
-    python -m kosmos_jax.experiments.angle_probe --workdir=runs/demo [--step=N] [--examples=3000] [--json]
+    python -m kosmos_jax.diagnostics.angle_probe --workdir=runs/demo [--step=N] [--examples=3000] [--json]
 
 Examples are those whose loss tokens hold an angle token (one per stored view); a vocabulary without
 angle value tokens (numbers=digits) has no `decoder` place and reads one example of each view.
@@ -179,7 +179,7 @@ def angle_probe(workdir, step: int | None = None, examples: int = 3000, ridge: f
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.experiments.angle_probe", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.angle_probe", description=__doc__.splitlines()[0])
     parser.add_argument("--workdir", required=True, help="a KOSMOS-E training run's folder")
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
     parser.add_argument("--examples", type=int, default=3000, help="training views the readouts are fit on")

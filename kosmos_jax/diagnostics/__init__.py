@@ -1,0 +1,15 @@
+"""Diagnostics: why a trained run scores what it scores. Not stages of the pipeline: each takes a
+workdir (most after `python -m kosmos_jax.evaluate` has scored it) and gives figures to read, on
+stdout (--json: one line) and, for image_use, in WORKDIR/eval/STEP/image_use.json.
+
+    python -m kosmos_jax.diagnostics.answer_errors --workdir=W [--step=N] [--scored=FOLDER] [--json]
+        how far the decoded answers fall from their targets: centre in pixels, angle in degrees
+    python -m kosmos_jax.diagnostics.part_oracles --workdir=W [--step=N] [--json]
+        the answers scored again with the angle, or the centre, taken from the ground truth
+    python -m kosmos_jax.diagnostics.image_use --workdir=W [--step=N] [--split=test] [--batches=4] [--json]
+        does the model read its image: the answers' loss with its own, another photo's, a blank image
+    python -m kosmos_jax.diagnostics.vision_probe --workdir=W [--steps=300] [--readout=patches] [--json]
+        can a fresh vision tower of the run's config find the grasp centre at all (a trained probe)
+    python -m kosmos_jax.diagnostics.angle_probe --workdir=W [--step=N] [--examples=3000] [--json]
+        where the model loses the grasp's angle: ridge readouts at the tower, the slots, the decoder
+"""
