@@ -9,6 +9,9 @@ attached: the step the trainer runs is lowered with ShapeDtypeStructs that carry
 mesh of the topology's devices and compiled by the TPU compiler, which then tells what every chip
 holds. `cpu:N` does the same on N host-platform devices. libtpu warns that it cannot determine
 TPU_ACCELERATOR_TYPE and worker hostnames: harmless for compiling.
+
+FLOPs a step are the model's own (kosmos_jax.models.flops, a function of the config), with XLA's
+count of the compiled program beside them where the backend gives one.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from absl import app, flags
 from ml_collections import config_flags
 
 from kosmos_jax.models import config as model_sizes
+from kosmos_jax.models.flops import TrainFlops, train_flops
 from kosmos_jax.models.kosmos2 import param_count
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE
@@ -244,17 +248,26 @@ def trainer_step(config: ml_collections.ConfigDict, mesh: jax.sharding.Mesh) -> 
     return TrainerStep(step, abstract_train_state(model_config, tx, mesh), batch_spec(config, mesh))
 
 
-def step_flops(config: ml_collections.ConfigDict, mesh: jax.sharding.Mesh, lowered=None) -> float:
-    """FLOPs of one step over the global batch, from the lowered program before it is partitioned.
+def model_flops(config: ml_collections.ConfigDict) -> TrainFlops:
+    """The model's own FLOPs of one step of the config over the global batch (kosmos_jax.models.flops):
+    the same with or without scan_layers and microbatches, and no second lowering to count them."""
+    model_config = run_model.model_config(config.model, vocab_size(config))
+    return train_flops(model_config, config.train.batch_size, config.data.build.max_length)
 
-    XLA's cost analysis counts a loop's body once, so the count comes from the same step with its
-    layers unrolled and one microbatch (the same arithmetic); `lowered` is reused when it is that."""
-    if lowered is None or config.model.scan_layers or config.train.microbatches > 1:
-        flat = config.copy_and_resolve_references()
-        flat.model.scan_layers, flat.train.microbatches = False, 1
-        twin = trainer_step(flat, mesh)
-        lowered = twin.step.lower(twin.state, twin.batch)
-    return float(lowered.cost_analysis()["flops"])
+
+def xla_flops(compiled, devices: int) -> float | None:
+    """XLA's FLOPs of a compiled step over all devices (each runs the same partitioned program), or
+    None where the backend's cost analysis gives none. XLA counts a loop's body once, so with
+    scan_layers or microbatches it falls short of the model's count."""
+    try:
+        analysis = compiled.cost_analysis()
+    except (NotImplementedError, jax.errors.JaxRuntimeError):
+        return None
+    if isinstance(analysis, (list, tuple)):  # one dict a program in older jax versions
+        analysis = analysis[0] if len(analysis) == 1 else None
+    if not isinstance(analysis, dict) or analysis.get("flops") is None:
+        return None
+    return float(analysis["flops"]) * devices
 
 
 def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
@@ -286,18 +299,23 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
     lowered = built.step.lower(built.state, built.batch)
     lower_s = time.perf_counter() - start
     try:
-        memory = memory_report(lowered.compile(), topology, hbm_bytes(topology, devices[0]))
+        compiled = lowered.compile()
+        memory = memory_report(compiled, topology, hbm_bytes(topology, devices[0]))
+        counted = xla_flops(compiled, len(devices))
     except jax.errors.JaxRuntimeError as error:
         overflow = hbm_overflow(str(error))
         if overflow is None:
             raise
         memory = refusal_report(overflow, sharded_bytes((built.state, built.batch)))
+        counted = None
     timing = {"lower_s": round(lower_s, 2), "compile_s": round(time.perf_counter() - start, 2)}  # lowering included
-    return {**described, **memory, "flops_per_step": step_flops(config, mesh, lowered), **timing}
+    flops = model_flops(config)
+    return {**described, **memory, "flops_per_step": flops.model, "model_flops": flops.as_dict(), "xla_flops": counted,
+            **timing}
 
 
 COLUMNS = ("topology", "devices", "mesh d x f x t", "remat", "scan", "batch", "args GiB", "out GiB", "temp GiB",
-           "total GiB", "peak GiB", "HBM GiB", "fits", "TFLOP/step", "compile s")
+           "total GiB", "peak GiB", "HBM GiB", "fits", "model TFLOP", "XLA TFLOP", "compile s")
 
 
 def table_row(plan: dict) -> tuple[str, ...]:
@@ -307,12 +325,14 @@ def table_row(plan: dict) -> tuple[str, ...]:
     def yes(flag):
         return "yes" if flag else "no"
 
+    def tflops(key):
+        return "-" if plan.get(key) is None else f"{plan[key] / 1e12:.4g}"
+
     mesh = "x".join(str(size) for size in plan["mesh"].values())
-    tflops = "-" if plan.get("flops_per_step") is None else f"{plan['flops_per_step'] / 1e12:.1f}"
     sizes = [gib(f"per_device_{part}_bytes") for part in ("argument", "output", "temp", "total", "peak")]
     return (plan["topology"], str(plan["devices"]), mesh, yes(plan["remat"]), yes(plan["scan_layers"]),
             f"{plan['batch_size']}x{plan['max_length']}", *sizes, gib("hbm_bytes"), "yes" if plan["fits"] else "NO",
-            tflops, f"{plan['compile_s']:.0f}")
+            tflops("flops_per_step"), tflops("xla_flops"), f"{plan['compile_s']:.0f}")
 
 
 def format_table(plans: Sequence[dict]) -> str:
