@@ -17,7 +17,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,tpu]'
 	@touch $(STAMP)
 
 demo: setup
@@ -38,10 +38,12 @@ bench: setup
 	for b in benchmarks/*.py; do [ "$$b" = benchmarks/timing.py ] || $(PY) $$b || exit 1; done
 
 # The TPU memory plan: the `paper` step compiled for v5e, v4 and v6e slices by libtpu, no TPU attached
-# (kosmos_jax/train/plan.py; minutes a topology on 2 cores).
+# (kosmos_jax/train/plan.py; minutes a topology on 2 cores). Another config or one topology:
+# make plan PLAN_FLAGS="--config=configs/kosmos_e.py:tiny --topology=v5e:2x2 [--json]"
+PLAN_FLAGS ?= --config=configs/kosmos_e.py:paper --plan
 plan: setup
 	$(PY) -m pip install --quiet -e '.[tpu]'
-	$(PY) -m kosmos_jax.train.compile --config=configs/kosmos_e.py:paper --plan
+	$(PY) -m kosmos_jax.train.compile $(PLAN_FLAGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
