@@ -32,7 +32,7 @@ from ml_collections import config_flags
 from kosmos_jax.data import cornell
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.dataset import views
-from kosmos_jax.evaluate.__main__ import evaluate, parse_args, write
+from kosmos_jax.evaluate.run_scores import evaluate, write
 from kosmos_jax.experiments import no_learning, runner, spec
 from kosmos_jax.metrics import BACKENDS
 from kosmos_jax.scoring import baselines, fold_scores
@@ -131,13 +131,12 @@ def fresh_rows(config, train_config, out: pathlib.Path, workdir: pathlib.Path, s
 def fresh_results(workdir: pathlib.Path, step: int, folder: pathlib.Path, kinds: list[str]) -> dict:
     """The evaluate command's results for the Cornell-format `folder` (reused when already written
     for these kinds)."""
-    args = parse_args(["--workdir", str(workdir), "--step", str(step), "--cornell", str(folder), "--kinds", ",".join(kinds)])
     written = workdir / "eval" / str(step) / f"cornell-{folder.resolve().name}" / "results.json"
     if written.is_file():
         results = json.loads(written.read_text())
         if results.get("kinds") == kinds and results.get("cornell") == str(folder.resolve()):
             return results
-    results, answers, where = evaluate(args)
+    results, answers, where = evaluate(workdir, step=step, cornell=folder, kinds=kinds)
     write(results, answers, where)
     return results
 

@@ -19,7 +19,8 @@ import pytest
 
 from kosmos_jax.baselines.inputs import ViewArrays
 from kosmos_jax.data.synthetic import scenes
-from kosmos_jax.evaluate.__main__ import evaluate, main, parse_args
+from kosmos_jax.evaluate.__main__ import main
+from kosmos_jax.evaluate.run_scores import evaluate
 from kosmos_jax.scoring.view_scores import view_results
 from kosmos_jax.train.metrics_log import read_metrics
 
@@ -81,7 +82,7 @@ def test_a_baseline_run_is_scored_with_kosmos_e_s_files_and_keys(evaluated, work
 
 
 def test_an_earlier_step_and_the_train_split(workdir):
-    results, rows, folder = evaluate(parse_args([f"--workdir={workdir}", "--step=1"]))
+    results, rows, folder = evaluate(workdir, step=1)
     assert results["step"] == 1 and folder == workdir / "eval" / "1" and len(rows) == results["instructions"]
     trained = json.loads((workdir / "run.json").read_text())["views"]["train"]
     code, out, err = run_cli(f"--workdir={workdir}", "--split=train", "--max-examples=5", "--json")

@@ -22,9 +22,12 @@ scored under the run's protocol; a Cornell folder under the honest one. results.
 and the run, split, data source, text format and settings it was scored with.
 
 A baseline's run (configs/baselines.py, config.task "baseline") is scored the same way, one
-predicted grasp a view as a "non" instruction (evaluate/baseline_run.py): the same files and keys,
+predicted grasp a view as a "non" instruction (baseline_run.py): the same files and keys,
 `accuracy` its accuracy in percent, answers.jsonl one line a view with its grasp; its splits are
 the fold's test and train views, and --kinds can only be non.
+
+The scoring itself is run_scores.evaluate(workdir, step=..., ...), which the demo and the
+experiment runner call directly; this module parses the flags and writes and prints its results.
 """
 
 from __future__ import annotations
@@ -32,17 +35,17 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import pathlib
 import sys
-import time
 
 from kosmos_jax.evaluate.overlays import write_overlays
-from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.scoring.cornell_examples import cornell_examples
-from kosmos_jax.scoring.model_scores import GraspEvaluation
+from kosmos_jax.evaluate.run_scores import evaluate, write
 from kosmos_jax.scoring.tally import markdown
-from kosmos_jax.workdir.files import RunError, read_description, run_task
-from kosmos_jax.workdir.run import open_run
+from kosmos_jax.workdir.files import RunError
+
+
+def kind_names(text: str) -> tuple[str, ...]:
+    """"non, single" -> ("non", "single")."""
+    return tuple(k.strip() for k in text.split(",") if k.strip())
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -51,7 +54,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
     parser.add_argument("--split", default="test", help="split of the run's dataset (default: test)")
     parser.add_argument("--cornell", default=None, help="score every photo of this Cornell-format folder instead")
-    parser.add_argument("--kinds", default="non",
+    parser.add_argument("--kinds", type=kind_names, default="non",
                         help="instruction kinds for --cornell, comma-separated, as the build names them (default: non)")
     parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--max-examples", type=int, default=0, help="decode at most this many examples (0: all)")
@@ -64,57 +67,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def evaluate(args: argparse.Namespace) -> tuple[dict, list[dict], pathlib.Path]:
-    """(results, one row per example, the folder they belong in) of the run in args.workdir, by what it
-    trained (run.json's config.task): KOSMOS-E's decoded answers, or a baseline's predicted grasps."""
-    if run_task(read_description(args.workdir)) == "baseline":
-        # imported here: a baseline's views are remade with the trainer's code (train.baseline_task),
-        # which scoring KOSMOS-E's runs does not import
-        from kosmos_jax.evaluate.baseline_run import evaluate_baseline
-
-        return evaluate_baseline(args)
-    return evaluate_kosmos_e(args)
-
-
-def evaluate_kosmos_e(args: argparse.Namespace) -> tuple[dict, list[dict], pathlib.Path]:
-    """evaluate() on a KOSMOS-E run: its answers decoded with and without the grasp grammar."""
-    started = time.perf_counter()
-    run = open_run(args.workdir)
-    mesh = make_mesh(1, -1, 1)
-    step, params = run.params(args.step, mesh)
-    if args.cornell:
-        kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
-        made = cornell_examples(args.cornell, run.tokenizer, run.format_config, kinds)
-        split, label, protocol = made.records, f"cornell-{pathlib.Path(args.cornell).resolve().name}", "honest"
-        source = {"cornell": str(pathlib.Path(args.cornell).resolve()), "kinds": list(kinds), "photos": made.photos,
-                  "views_without_grasps": made.views_without_grasps}
-    else:
-        split, label, protocol = run.split(args.split), args.split, run.protocol
-        source = {"dataset_dir": run.description["dataset_dir"]}
-    evaluation = GraspEvaluation(run.model_config, mesh, split, run.tokenizer, run.format_config, protocol,
-                                 batch_size=args.batch_size, max_examples=args.max_examples)
-    figures, rows = evaluation.results(params)
-    results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
-               "split": label, **source, "representation": run.format_config.representation,
-               "individual": run.format_config.individual, "angle_code": run.format_config.angle_code, **figures,
-               "max_examples": args.max_examples, "batch_size": args.batch_size,
-               "seconds": round(time.perf_counter() - started, 2)}
-    folder = run.workdir / "eval" / str(step)
-    return results, rows, folder if label == "test" else folder / label
-
-
-def write(results: dict, rows: list[dict], folder: pathlib.Path) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "results.json").write_text(json.dumps(results, indent=1) + "\n")
-    (folder / "results.md").write_text(markdown(results))
-    (folder / "answers.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
-            results, rows, folder = evaluate(args)
+            results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split, cornell=args.cornell,
+                                             kinds=args.kinds, batch_size=args.batch_size,
+                                             max_examples=args.max_examples)
             write(results, rows, folder)
             write_overlays(args.workdir, results, rows, folder, args.overlays)
     except (RunError, FileNotFoundError, ValueError) as error:

@@ -1,6 +1,6 @@
 """A baseline's workdir (config.task "baseline": GR-ConvNet or GG-CNN2), scored as KOSMOS-E's is.
 
-    results, rows, folder = evaluate_baseline(args)    # the evaluate command's parsed arguments
+    results, rows, folder = evaluate_baseline(workdir, step=..., split=..., ...)   # run_scores.evaluate's arguments
 
 The views: a split of the run's fold remade from run.json (train.baseline_task.load_views: the
 photos of its data source, the same folds, augmentation and keys as in training; the count of test
@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import time
+from collections.abc import Sequence
 
 import jax
 import ml_collections
@@ -118,33 +119,32 @@ def first_views(views: ViewArrays, count: int) -> ViewArrays:
     return views.select(list(zip(views.photo_id, views.copy))[:count])
 
 
-def evaluate_baseline(args) -> tuple[dict, list[dict], pathlib.Path]:
-    """(results, one row per view, the folder they belong in): the evaluate command on a baseline's run."""
+def evaluate_baseline(workdir, *, step: int | None, split: str, cornell, kinds: Sequence[str], batch_size: int,
+                      max_examples: int) -> tuple[dict, list[dict], pathlib.Path]:
+    """(results, one row per view, the folder they belong in): run_scores.evaluate on a baseline's run."""
     started = time.perf_counter()
-    run = open_baseline_run(args.workdir)
-    if args.cornell:
-        kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-        if kinds != [NON]:
-            raise ValueError(f"--kinds={args.kinds}: a baseline ({run.name}) takes no instruction; "
-                             f"only {NON!r} can be scored")
-    step, weights = run.weights(args.step)
-    if args.cornell:
-        made = run.cornell_views(args.cornell)
+    run = open_baseline_run(workdir)
+    if cornell and list(kinds) != [NON]:
+        raise ValueError(f"--kinds={','.join(kinds)}: a baseline ({run.name}) takes no instruction; "
+                         f"only {NON!r} can be scored")
+    step, weights = run.weights(step)
+    if cornell:
+        made = run.cornell_views(cornell)
         views, protocol = made.views, "honest"
-        label = f"cornell-{pathlib.Path(args.cornell).resolve().name}"
-        source = {"cornell": str(pathlib.Path(args.cornell).resolve()), "kinds": [NON], "photos": made.photos,
+        label = f"cornell-{pathlib.Path(cornell).resolve().name}"
+        source = {"cornell": str(pathlib.Path(cornell).resolve()), "kinds": [NON], "photos": made.photos,
                   "views_without_grasps": made.views_without_grasps, "missing_depth": made.missing_depth}
     else:
-        views, protocol, label = run.split(args.split), run.protocol, args.split
+        views, protocol, label = run.split(split), run.protocol, split
         source = {"source": str(run.source_folder()), "fold": run.config.data.fold,
                   "scheme": run.config.data.scheme, "missing_depth": run.description["missing_depth"]}
-    views = first_views(views, args.max_examples)
-    grasps = predict_views(run.family, weights["params"], weights["model_state"], views, args.batch_size)
+    views = first_views(views, max_examples)
+    grasps = predict_views(run.family, weights["params"], weights["model_state"], views, batch_size)
     figures, rows = view_results(grasps, views, protocol)
     results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
                "split": label, **source, "model": run.name, "network": run.family.config.network,
                "mode": run.family.config.mode, "channels": run.family.config.channels, **figures,
-               "max_examples": args.max_examples, "batch_size": args.batch_size,
+               "max_examples": max_examples, "batch_size": batch_size,
                "seconds": round(time.perf_counter() - started, 2)}
     folder = run.workdir / "eval" / str(step)
     return results, rows, folder if label == "test" else folder / label

@@ -3,7 +3,7 @@
     summary = run_experiment(config, workdir, command="python -m kosmos_jax.experiments ...")
 
 Per fold, in WORKDIR/<arm>/<protocol>-<scheme>-fold<i>: trainer.train (which resumes a half-trained
-run itself), the evaluate command's evaluate + write (WORKDIR/.../eval/STEP/; results already there
+run itself), the evaluate command's code, evaluate.run_scores (WORKDIR/.../eval/STEP/; results already there
 for the trained step are read, not decoded again), the no-learning predictors on the run's test
 instructions (KOSMOS-E arms), then the record fold.json (with, when the arm's data.build holds out a
 validation split, the trainer's last validation figures under "validation"). A fold with a record is
@@ -44,9 +44,9 @@ def evaluate_run(workdir: pathlib.Path, step: int) -> dict:
     existing = workdir / "eval" / str(step) / "results.json"
     if existing.is_file():
         return json.loads(existing.read_text())
-    from kosmos_jax.evaluate.__main__ import evaluate, parse_args, write
+    from kosmos_jax.evaluate.run_scores import evaluate, write
 
-    results, rows, folder = evaluate(parse_args(["--workdir", str(workdir), "--step", str(step)]))
+    results, rows, folder = evaluate(workdir, step=step)
     write(results, rows, folder)
     return results
 
