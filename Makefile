@@ -3,6 +3,7 @@ PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+TPU_STAMP := $(VENV)/.installed-tpu
 WORKERS ?= 2
 # XLA's CPU runtime allocates each step's large buffers afresh; glibc maps them with 4 KiB pages and
 # the kernel faults them in again every step (about a fifth of a training step's CPU time here).
@@ -17,16 +18,22 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,tpu]'
+	$(PY) -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
+
+# The suite and the plan compile for TPU topologies with libtpu (the `tpu` extra: a 213 MB wheel),
+# which the demo does not need: its set-up stays without it.
+$(TPU_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[test,tpu]'
+	@touch $(TPU_STAMP)
 
 demo: setup
 	$(PY) -m kosmos_jax.demo --config=configs/demo.py
 
-test: setup
+test: $(TPU_STAMP)
 	$(PY) -m pytest -n $(WORKERS) --dist loadgroup -q
 
-test-slow: setup
+test-slow: $(TPU_STAMP)
 	$(PY) -m pytest -n $(WORKERS) --dist loadgroup -q -m slow
 
 # The live comparison with transformers' PyTorch KOSMOS-2 (installs the CPU build of torch, ~1 GB).
@@ -41,8 +48,7 @@ bench: setup
 # (kosmos_jax/train/plan.py; minutes a topology on 2 cores). Another config or one topology:
 # make plan PLAN_FLAGS="--config=configs/kosmos_e.py:tiny --topology=v5e:2x2 [--json]"
 PLAN_FLAGS ?= --config=configs/kosmos_e.py:paper --plan
-plan: setup
-	$(PY) -m pip install --quiet -e '.[tpu]'
+plan: $(TPU_STAMP)
 	$(PY) -m kosmos_jax.train.compile $(PLAN_FLAGS)
 
 clean:
