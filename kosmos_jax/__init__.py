@@ -3,6 +3,7 @@
 The packages are the stages of the pipeline, in this order; each imports only from the ones above
 it (tests/test_layout.py checks this):
   geometry, grasp_text, publish  conventions (DESIGN.md section 2) and atomic folder writes
+  jax_platforms  keeps jax from starting libtpu where there is no TPU (set on import)
   metrics       the rectangle metric
   data          1. readers (Cornell, Jacquard, KOSMOS-E annotations), folds, synthetic scenes
   augment       2. jit augmentation: photos -> 224 views
@@ -27,7 +28,11 @@ does not import jax.
 
 import importlib
 
+from kosmos_jax.jax_platforms import quiet_libtpu_without_tpu
+
 __version__ = "0.1.0"
+
+quiet_libtpu_without_tpu()
 
 _LAZY = {"GraspPredictor": "kosmos_jax.predict.predictor", "Grasp": "kosmos_jax.predict.predictor"}
 
