@@ -13,7 +13,7 @@ from kosmos_jax.data import cornell
 from kosmos_jax.data.synthetic import scenes
 from kosmos_jax.data.photo import Photo
 from kosmos_jax.dataset import views
-from kosmos_jax.scoring import baselines, fold_scores
+from kosmos_jax.scoring import fold_scores, no_learning
 from kosmos_jax.experiments import spec
 
 _spec = importlib.util.spec_from_file_location("demo_settings", pathlib.Path(__file__).parents[1] / "configs" / "demo.py")
@@ -71,12 +71,12 @@ def test_views_reject_bad_input(photos):
 
 def test_ground_truth_mean_treats_angles_as_axes():
     grasps = np.array([[[10.0, 20.0, 30.0, 10.0, math.radians(89)], [30.0, 40.0, 30.0, 10.0, math.radians(-89)]]])
-    mean = baselines.ground_truth_mean(grasps, np.array([[True, True]]))[0]
+    mean = no_learning.ground_truth_mean(grasps, np.array([[True, True]]))[0]
     assert mean[:2] == pytest.approx([20.0, 30.0])
     assert abs(abs(mean[2]) - math.pi / 2) < 1e-5  # not 0, which the plain mean gives
-    empty = baselines.ground_truth_mean(grasps, np.array([[False, False]]))
+    empty = no_learning.ground_truth_mean(grasps, np.array([[False, False]]))
     assert np.isnan(empty).all()
-    assert baselines.image_centre(grasps, None).tolist() == [[112.0, 112.0, 0.0]]
+    assert no_learning.image_centre(grasps, None).tolist() == [[112.0, 112.0, 0.0]]
 
 
 def crafted_views(count=10):

@@ -3,7 +3,7 @@
     figures = score(records, protocol, image_size)   # {"image_centre": {...}, "gt_mean_oracle": {...}}
 
 The instructions are the evaluation's (scoring.instructions.group_instructions of the test
-split's records), the predictors scoring.baselines', the metric and protocol the evaluation's
+split's records), the predictors scoring.no_learning's, the metric and protocol the evaluation's
 tally: so a row of these sits beside the model's on the same footing. An angle instruction states
 its angle; both predictors use it there, as the model's answer does (its answer is the centre only).
 `digest` names the test instructions, so runs scored on the same ones can share these rows.
@@ -16,10 +16,9 @@ import hashlib
 import numpy as np
 
 from kosmos_jax.scoring import tally
-from kosmos_jax.scoring.baselines import BASELINES, ground_truth_mean, image_centre
+from kosmos_jax.scoring.no_learning import PREDICTORS, ground_truth_mean, image_centre
 from kosmos_jax.scoring.instructions import Instruction, group_instructions, instructed_angle, text
 
-PREDICTORS = tuple(BASELINES)  # ("image_centre", "gt_mean_oracle")
 
 
 def truths(instructions: list[Instruction]) -> tuple[np.ndarray, np.ndarray]:
@@ -41,7 +40,7 @@ def predict(name: str, instructions: list[Instruction], image_size: int) -> np.n
     elif name == "gt_mean_oracle":
         out = ground_truth_mean(grasps, mask)
     else:
-        raise ValueError(f"unknown no-learning predictor {name!r}; expected one of {PREDICTORS}")
+        raise ValueError(f"unknown no-learning predictor {name!r}; expected one of {tuple(PREDICTORS)}")
     out = np.array(out, np.float64)
     for row, instruction in enumerate(instructions):
         if instruction.answer == "centre":

@@ -8,7 +8,7 @@ below the `python -m kosmos_jax.evaluate` command (kosmos_jax.evaluate), the tra
   fold_scores       the rectangle metric per fold, mean +- std (the no-learning predictors' tables)
   tally             successes -> accuracy overall, per kind and per scene; its Markdown table
   decoding, prompts, questions, instructions   greedy answers; what is asked; answers -> grasps
-  baselines         the two predictors that learn nothing
+  no_learning       the two predictors that learn nothing (the trained baselines are kosmos_jax.baselines)
   cornell_examples  every photo of a Cornell-format folder as examples
   grasp_size        the w, h a predicted (x, y, theta) borrows from the ground truths
   drawing           grasps drawn on images, the paper's Fig. 7 (evaluate --overlays, predict --out)

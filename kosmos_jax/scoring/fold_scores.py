@@ -9,7 +9,7 @@ import numpy as np
 from kosmos_jax.data import splits
 from kosmos_jax.dataset.views import Views
 from kosmos_jax.metrics import grasp_success
-from kosmos_jax.scoring.baselines import ground_truth_mean
+from kosmos_jax.scoring.no_learning import ground_truth_mean
 
 WH_POLICY = {"honest": "per_gt", "paper": "kosmos_e"}
 

@@ -30,4 +30,4 @@ def ground_truth_mean(grasps, mask):
     return np.asarray(jnp.concatenate([centre, theta[..., None]], axis=-1))
 
 
-BASELINES = {"image_centre": image_centre, "gt_mean_oracle": ground_truth_mean}
+PREDICTORS = {"image_centre": image_centre, "gt_mean_oracle": ground_truth_mean}
