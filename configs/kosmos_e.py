@@ -144,14 +144,17 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     elif variant == "demo":
         # From scratch in minutes (results/demo/diagnosis.txt, sections 5 to 7): training crops on the photo
         # centre as the honest test views are; one token a value, whose embeddings start smooth in the value;
-        # a connector that is taught to point at the grasp's patch and carries that patch's grid cell
+        # a connector that is taught to point at the grasp's patch and carries that patch's grid cell;
+        # the tower's grasp patch and every slot the decoder reads also asked for the angle, without which
+        # the decoder answers one angle for every photo (results/angle_study: 38.89 against 24.07 on
+        # validation, on seeds 0 and 1 alike)
         config.data = data_config(top=dict(synthetic_photos=300), augmentations=16, train_crop="image_centre",
                                   numbers="values", max_length=88)
         config.model = demo_model(connector_dense_std=1.0, connector_grid_code=3.0, value_token_code=2.0)
         config.optimizer = optimizer_config(peak_lr=1e-3, warmup_steps=100)
         # 800 steps: about 10 minutes of `make demo`'s 15 on 2 quiet cores (0.7 s a step)
         config.train = train_config(steps=800, batch_size=32, log_every=10, eval_every=400, checkpoint_every=100,
-                                    pointing_loss=1.0)
+                                    pointing_loss=1.0, tower_angle_loss=4.0, slot_angle_loss=1.0)
     elif variant == "demo_kosmos2":
         # The demo model with KOSMOS-2's connector and init, digit numbers and label-centred training crops:
         # what `make demo` trained before 2026-11-25 and what the experiments' cpu arms were run with. Its
