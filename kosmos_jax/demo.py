@@ -35,7 +35,8 @@ from kosmos_jax.dataset import views
 from kosmos_jax.evaluate.run_scores import evaluate, write
 from kosmos_jax.experiments import no_learning, runner, spec
 from kosmos_jax.metrics import BACKENDS
-from kosmos_jax.scoring import fold_scores, no_learning
+from kosmos_jax.scoring import fold_scores
+from kosmos_jax.scoring.no_learning import PREDICTORS
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.workdir.run import open_run
 
@@ -66,7 +67,7 @@ def evaluate_source(name: str, root: pathlib.Path, seed: int, k: int = 5) -> lis
         for scheme in ("image", "object"):
             folds = fold_scores.view_folds(test_views, scheme, protocol, object_of, k=k, seed=seed)
             for backend in BACKENDS:
-                for predictor, predict in no_learning.PREDICTORS.items():
+                for predictor, predict in PREDICTORS.items():
                     prediction = predict(test_views.grasps, test_views.mask)
                     result = fold_scores.score(prediction, test_views, folds, protocol, backend, k)
                     rows.append(
