@@ -31,18 +31,13 @@ def nvidia_gpu_present() -> bool:
     return os.path.exists("/proc/driver/nvidia/version") or bool(glob.glob("/dev/nvidia[0-9]*"))
 
 
-def cpu_only_platforms(environ: dict, libtpu_installed: bool, tpu_chip: bool, nvidia_gpu: bool) -> str | None:
-    """The JAX_PLATFORMS to set, or None to leave jax's own choice."""
-    if "JAX_PLATFORMS" in environ or not libtpu_installed or tpu_chip or nvidia_gpu:
-        return None
-    return "cpu"
+def libtpu_installed() -> bool:
+    return importlib.util.find_spec("libtpu") is not None
 
 
 def quiet_libtpu_without_tpu(environ=os.environ) -> None:
     """Set JAX_PLATFORMS=cpu where libtpu is installed and only the CPU can run jax (before jax starts)."""
-    if "JAX_PLATFORMS" in environ:
-        return
-    platforms = cpu_only_platforms(environ, importlib.util.find_spec("libtpu") is not None,
-                                   tpu_chip_present(), nvidia_gpu_present())
-    if platforms is not None:
-        environ["JAX_PLATFORMS"] = platforms
+    if "JAX_PLATFORMS" in environ or not libtpu_installed():
+        return  # the user's choice stands; without libtpu jax starts no TPU backend
+    if not tpu_chip_present() and not nvidia_gpu_present():
+        environ["JAX_PLATFORMS"] = "cpu"

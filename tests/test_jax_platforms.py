@@ -7,7 +7,8 @@ import sys
 
 import pytest
 
-from kosmos_jax.jax_platforms import cpu_only_platforms, tpu_chip_present
+from kosmos_jax import jax_platforms
+from kosmos_jax.jax_platforms import tpu_chip_present
 
 
 @pytest.mark.parametrize("environ, libtpu, tpu, gpu, expected", [
@@ -15,11 +16,17 @@ from kosmos_jax.jax_platforms import cpu_only_platforms, tpu_chip_present
     ({}, False, False, False, None),  # no libtpu: jax starts no TPU backend anyway
     ({}, True, True, False, None),  # a TPU VM: jax must find its chips
     ({}, True, False, True, None),  # a GPU machine: jax must find the GPU
-    ({"JAX_PLATFORMS": "tpu"}, True, False, False, None),  # the user's choice stands
-    ({"JAX_PLATFORMS": ""}, True, False, False, None),
+    ({"JAX_PLATFORMS": "tpu"}, True, False, False, "tpu"),  # the user's choice stands
+    ({"JAX_PLATFORMS": ""}, True, False, False, ""),
 ])
-def test_cpu_is_chosen_only_where_it_is_the_only_backend_and_the_user_chose_nothing(environ, libtpu, tpu, gpu, expected):
-    assert cpu_only_platforms(environ, libtpu, tpu, gpu) == expected
+def test_cpu_is_chosen_only_where_it_is_the_only_backend_and_the_user_chose_nothing(
+        monkeypatch, environ, libtpu, tpu, gpu, expected):
+    monkeypatch.setattr(jax_platforms, "libtpu_installed", lambda: libtpu)
+    monkeypatch.setattr(jax_platforms, "tpu_chip_present", lambda: tpu)
+    monkeypatch.setattr(jax_platforms, "nvidia_gpu_present", lambda: gpu)
+    environ = dict(environ)
+    jax_platforms.quiet_libtpu_without_tpu(environ)
+    assert environ.get("JAX_PLATFORMS") == expected
 
 
 def test_a_tpu_chip_is_found_by_its_pci_vendor(tmp_path):
