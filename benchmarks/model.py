@@ -6,8 +6,8 @@
 Without the glibc tunable, the kernel faults in the step's fresh buffers 4 KiB at a time on every
 step; `minor_page_faults_per_step` shows it (see the Makefile).
 
-MFU FLOPs are counted twice: by XLA's cost analysis of the compiled step and by formula (matmuls
-and attention products only; backward = 2 x forward). Both are printed.
+MFU FLOPs are counted twice: by XLA's cost analysis of the compiled step and by the model's own
+count (kosmos_jax.models.flops: matmuls and attention products only). Both are printed.
 """
 
 from __future__ import annotations
@@ -26,23 +26,8 @@ from flax import nnx
 from timing import best_time, matmul_peak  # benchmarks/timing.py, beside this script
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models import decode
+from kosmos_jax.models.flops import train_flops, xla_flops
 from kosmos_jax.models.kosmos2 import build
-
-
-def formula_flops(cfg: config_lib.Kosmos2Config, batch: int, length: int) -> float:
-    """Forward matmul + attention FLOPs (2 per multiply-add), times 3 for forward + backward."""
-    v, t = cfg.vision, cfg.text
-    nv = v.num_positions
-    vision = 2 * v.num_patches * v.num_channels * v.patch_size**2 * v.hidden_size
-    vision += v.num_hidden_layers * (4 * 2 * nv * v.hidden_size**2 + 2 * 2 * nv**2 * v.hidden_size
-                                     + 2 * 2 * nv * v.hidden_size * v.intermediate_size)
-    q, kv = cfg.latent_query_num, nv + cfg.latent_query_num
-    connector = 2 * nv * v.hidden_size * t.embed_dim + 2 * 2 * q * t.embed_dim**2 + 2 * 2 * kv * t.embed_dim**2
-    connector += 2 * 2 * q * kv * t.embed_dim
-    text = t.layers * (4 * 2 * length * t.embed_dim**2 + 2 * 2 * length**2 * t.embed_dim
-                       + 2 * 2 * length * t.embed_dim * t.ffn_dim)
-    text += 2 * length * t.embed_dim * t.vocab_size  # tied LM head
-    return 3.0 * batch * (vision + connector + text)
 
 
 def inputs(cfg, batch, length, seed=0):
@@ -67,18 +52,17 @@ def train_step_speed(cfg, batch, length) -> dict:
 
     step = jax.jit(jax.value_and_grad(loss_fn))
     compiled = step.lower(params, ids, mask, image_mask, pixels).compile()
-    cost = compiled.cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    xla_flops = float(cost.get("flops", float("nan")))
+    counted = xla_flops(compiled)
+    counted = float("nan") if counted is None else counted
     seconds = best_time(compiled, params, ids, mask, image_mask, pixels, repeats=3)
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     jax.block_until_ready(compiled(params, ids, mask, image_mask, pixels))
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
-    by_formula = formula_flops(cfg, batch, length)
+    by_formula = train_flops(cfg, batch, length).model
     return {
         "batch": batch, "length": length, "step_seconds": round(seconds, 4),
-        "flops_xla": xla_flops, "flops_formula": by_formula,
-        "gflops_per_s_xla": round(xla_flops / seconds / 1e9, 1),
+        "flops_xla": counted, "flops_formula": by_formula,
+        "gflops_per_s_xla": round(counted / seconds / 1e9, 1),
         "gflops_per_s_formula": round(by_formula / seconds / 1e9, 1),
         "minor_page_faults_per_step": faults,
     }

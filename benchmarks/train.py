@@ -27,6 +27,7 @@ from flax import nnx
 
 from timing import best_time, matmul_peak  # benchmarks/timing.py, beside this script
 from kosmos_jax.models import config as config_lib
+from kosmos_jax.models.flops import xla_flops
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train.mesh import batch_sharding
@@ -53,12 +54,6 @@ def random_batch(cfg, batch: int, length: int, seed: int = 0) -> dict:
             "grasp": np.zeros((batch, 5), np.float32), "example_index": np.arange(batch)}
 
 
-def compiled_flops(compiled) -> float:
-    cost = compiled.cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    return float(cost.get("flops", float("nan")))
-
-
 def full_step(cfg, batch: dict, mesh_sizes=(1, 1, 1)) -> dict:
     """The trainer's own step (forward, backward, clipping, AdamW) on a mesh: seconds and FLOPs."""
     mesh = make_mesh(*mesh_sizes)
@@ -68,7 +63,7 @@ def full_step(cfg, batch: dict, mesh_sizes=(1, 1, 1)) -> dict:
     step = make_train_step(cfg, tx, schedule, mesh)
     placed = jax.device_put(batch, batch_sharding(mesh))
     compiled = step.lower(state, placed).compile()
-    flops = compiled_flops(compiled)
+    flops = xla_flops(compiled)
     holder = {"state": state}
 
     def one():
@@ -90,7 +85,7 @@ def forward_backward(cfg, batch: dict) -> dict:
         return optax.softmax_cross_entropy_with_integer_labels(logits[:, :-1], batch["tokens"][:, 1:]).mean()
 
     compiled = jax.jit(jax.grad(loss)).lower(params, arrays).compile()
-    return {"step_seconds": best_time(compiled, params, arrays, repeats=5), "flops": compiled_flops(compiled)}
+    return {"step_seconds": best_time(compiled, params, arrays, repeats=5), "flops": xla_flops(compiled)}
 
 
 def checkpoint_save(state, step_seconds: float) -> dict:

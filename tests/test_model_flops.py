@@ -10,7 +10,7 @@ import pytest
 from jax.extend import core as jax_core
 
 from kosmos_jax.models import config as model_sizes
-from kosmos_jax.models.flops import train_flops
+from kosmos_jax.models.flops import train_flops, xla_flops
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE, pixels
 from kosmos_jax.experiments.spec import load_config
@@ -91,18 +91,24 @@ def test_xla_counts_the_matmuls_and_a_share_of_elementwise_work_more():
     assert 1.0 <= ratio <= 1.35, ratio
 
 
-def test_the_count_does_not_see_scan_layers_or_microbatches():
-    plain = _config("paper")
-    looped = _config("paper")
-    looped.model.scan_layers, looped.train.microbatches = True, 4
-    assert train_compile.model_flops(looped) == train_compile.model_flops(plain)
-
-
 def test_parts_and_totals():
     flops = train_flops(model_sizes.KOSMOS2.replace(remat=True), batch_size=2, length=256)
-    parts = flops.parts()
-    assert flops.forward == sum(parts.values()) and set(parts) >= {"lm_head", "decoder_attention", "vision_matmuls"}
-    assert flops.backward == 2 * flops.forward - parts["patch_embedding"]
-    assert flops.as_dict()["model"] == 3 * flops.forward - parts["patch_embedding"]
+    assert set(flops.parts()) >= {"lm_head", "decoder_attention", "vision_matmuls"}
     assert 0 < flops.remat_forward < flops.forward
     assert train_flops(model_sizes.KOSMOS2, 4, 256).model == 2 * train_flops(model_sizes.KOSMOS2, 2, 256).model
+
+
+def test_xla_flops_where_the_backend_gives_them():
+    class Compiled:
+        def __init__(self, analysis):
+            self.analysis = analysis
+
+        def cost_analysis(self):
+            if isinstance(self.analysis, Exception):
+                raise self.analysis
+            return self.analysis
+
+    assert xla_flops(Compiled({"flops": 5.0, "bytes accessed": 9.0})) == 5.0
+    assert xla_flops(Compiled([{"flops": 5.0}])) == 5.0
+    for nothing in (None, [], {}, {"bytes accessed": 9.0}, {"flops": None}, NotImplementedError("no cost model")):
+        assert xla_flops(Compiled(nothing)) is None

@@ -6,12 +6,15 @@ masked ones are computed too). Not counted: elementwise work (LayerNorm, softmax
 the image's resize and the optimiser. The backward pass is twice the forward (the gradients of a
 matmul's input and of its weight), except for the patch embedding, whose input is the image: it
 gets no gradient. XLA's cost analysis counts a loop's body once; this count does not see loops, so
-`scan_layers` and microbatches leave it as it is.
+`scan_layers` and microbatches leave it as it is. `xla_flops` is XLA's count of a compiled program,
+to set beside it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+
+import jax
 
 from kosmos_jax.models.config import Kosmos2Config
 
@@ -92,3 +95,18 @@ def train_flops(cfg: Kosmos2Config, batch_size: int, length: int) -> TrainFlops:
         lm_head=batch_size * 2 * length * d * text.vocab_size,
         remat_forward=batch_size * recomputed if cfg.remat else 0,
     )
+
+
+def xla_flops(compiled) -> float | None:
+    """XLA's FLOPs of one device's compiled program, or None where the backend's cost analysis gives
+    none (a TPU topology's lowered program, with jax 0.10.2). XLA counts a loop's body once, so with
+    scan_layers or microbatches it falls short of the model's count."""
+    try:
+        analysis = compiled.cost_analysis()
+    except (NotImplementedError, jax.errors.JaxRuntimeError):
+        return None
+    if isinstance(analysis, (list, tuple)):  # one dict a program in older jax versions
+        analysis = analysis[0] if len(analysis) == 1 else None
+    if not isinstance(analysis, dict) or analysis.get("flops") is None:
+        return None
+    return float(analysis["flops"])

@@ -33,7 +33,7 @@ from absl import app, flags
 from ml_collections import config_flags
 
 from kosmos_jax.models import config as model_sizes
-from kosmos_jax.models.flops import TrainFlops, train_flops
+from kosmos_jax.models.flops import TrainFlops, train_flops, xla_flops
 from kosmos_jax.models.kosmos2 import param_count
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE
@@ -255,21 +255,6 @@ def model_flops(config: ml_collections.ConfigDict) -> TrainFlops:
     return train_flops(model_config, config.train.batch_size, config.data.build.max_length)
 
 
-def xla_flops(compiled, devices: int) -> float | None:
-    """XLA's FLOPs of a compiled step over all devices (each runs the same partitioned program), or
-    None where the backend's cost analysis gives none. XLA counts a loop's body once, so with
-    scan_layers or microbatches it falls short of the model's count."""
-    try:
-        analysis = compiled.cost_analysis()
-    except (NotImplementedError, jax.errors.JaxRuntimeError):
-        return None
-    if isinstance(analysis, (list, tuple)):  # one dict a program in older jax versions
-        analysis = analysis[0] if len(analysis) == 1 else None
-    if not isinstance(analysis, dict) or analysis.get("flops") is None:
-        return None
-    return float(analysis["flops"]) * devices
-
-
 def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
     """Compile the trainer's step for `topology` and report memory per device, FLOPs and compile time.
 
@@ -301,7 +286,8 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
     try:
         compiled = lowered.compile()
         memory = memory_report(compiled, topology, hbm_bytes(topology, devices[0]))
-        counted = xla_flops(compiled, len(devices))
+        counted = xla_flops(compiled)  # one device's partitioned program; every device runs the same
+        counted = None if counted is None else counted * len(devices)
     except jax.errors.JaxRuntimeError as error:
         overflow = hbm_overflow(str(error))
         if overflow is None:
@@ -310,8 +296,7 @@ def compile_plan(config: ml_collections.ConfigDict, topology: Topology) -> dict:
         counted = None
     timing = {"lower_s": round(lower_s, 2), "compile_s": round(time.perf_counter() - start, 2)}  # lowering included
     flops = model_flops(config)
-    return {**described, **memory, "flops_per_step": flops.model, "model_flops": flops.as_dict(), "xla_flops": counted,
-            **timing}
+    return {**described, **memory, "model_flops": flops.as_dict(), "xla_flops": counted, **timing}
 
 
 COLUMNS = ("topology", "devices", "mesh d x f x t", "remat", "scan", "batch", "args GiB", "out GiB", "temp GiB",
@@ -325,14 +310,14 @@ def table_row(plan: dict) -> tuple[str, ...]:
     def yes(flag):
         return "yes" if flag else "no"
 
-    def tflops(key):
-        return "-" if plan.get(key) is None else f"{plan[key] / 1e12:.4g}"
+    def tflops(flops):
+        return "-" if flops is None else f"{flops / 1e12:.4g}"
 
     mesh = "x".join(str(size) for size in plan["mesh"].values())
     sizes = [gib(f"per_device_{part}_bytes") for part in ("argument", "output", "temp", "total", "peak")]
     return (plan["topology"], str(plan["devices"]), mesh, yes(plan["remat"]), yes(plan["scan_layers"]),
             f"{plan['batch_size']}x{plan['max_length']}", *sizes, gib("hbm_bytes"), "yes" if plan["fits"] else "NO",
-            tflops("flops_per_step"), tflops("xla_flops"), f"{plan['compile_s']:.0f}")
+            tflops(plan["model_flops"]["model"]), tflops(plan.get("xla_flops")), f"{plan['compile_s']:.0f}")
 
 
 def format_table(plans: Sequence[dict]) -> str:
