@@ -16,25 +16,13 @@ import hashlib
 import numpy as np
 
 from kosmos_jax.scoring import tally
-from kosmos_jax.scoring.no_learning import PREDICTORS, ground_truth_mean, image_centre
 from kosmos_jax.scoring.instructions import Instruction, group_instructions, instructed_angle, text
-
-
-
-def truths(instructions: list[Instruction]) -> tuple[np.ndarray, np.ndarray]:
-    """[G, N, 5] every instruction's answer grasps, padded, and their [G, N] mask."""
-    width = max(len(i.answers) for i in instructions)
-    grasps = np.zeros((len(instructions), width, 5), np.float32)
-    mask = np.zeros((len(instructions), width), bool)
-    for row, instruction in enumerate(instructions):
-        grasps[row, :len(instruction.answers)] = instruction.answers
-        mask[row, :len(instruction.answers)] = True
-    return grasps, mask
+from kosmos_jax.scoring.no_learning import PREDICTORS, ground_truth_mean, image_centre
 
 
 def predict(name: str, instructions: list[Instruction], image_size: int) -> np.ndarray:
     """[G, 3] (x, y, theta) of predictor `name` for every instruction."""
-    grasps, mask = truths(instructions)
+    grasps, mask = tally.padded_answers(instructions)
     if name == "image_centre":
         out = image_centre(grasps, mask, image_size)
     elif name == "gt_mean_oracle":

@@ -18,18 +18,24 @@ from kosmos_jax.scoring.fold_scores import WH_POLICY
 from kosmos_jax.scoring.instructions import Instruction, combine
 
 
+def padded_answers(instructions: Sequence[Instruction]) -> tuple[np.ndarray, np.ndarray]:
+    """[G, N, 5] every instruction's answer grasps, padded to the most answers, and their [G, N] mask."""
+    width = max(len(i.answers) for i in instructions)
+    grasps = np.zeros((len(instructions), width, 5), np.float32)
+    mask = np.zeros((len(instructions), width), bool)
+    for row, instruction in enumerate(instructions):
+        grasps[row, :len(instruction.answers)] = instruction.answers
+        mask[row, :len(instruction.answers)] = True
+    return grasps, mask
+
+
 def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol: str,
               backend: str = "exact") -> np.ndarray:
     """bool [G]: does grasp i, (x, y, theta), hit a ground truth of instruction i? w and h follow the
     protocol (honest: each ground truth's own; paper: the widest opening and the mean jaw)."""
     if not instructions:
         return np.zeros(0, bool)
-    width = max(len(i.answers) for i in instructions)
-    gts = np.zeros((len(instructions), width, 5), np.float32)
-    mask = np.zeros((len(instructions), width), bool)
-    for row, instruction in enumerate(instructions):
-        gts[row, :len(instruction.answers)] = instruction.answers
-        mask[row, :len(instruction.answers)] = True
+    gts, mask = padded_answers(instructions)
     found = grasp_success(np.asarray(grasps, np.float32), gts, mask, backend=backend, wh_policy=WH_POLICY[protocol])
     return np.asarray(found)
 
