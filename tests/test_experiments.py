@@ -3,6 +3,7 @@ calls), aggregation (mean, std, n; table.md; the no-learning rows), the data-siz
 experiment config (cpu and paper) built without training, the SLURM aggregate step, and one tiny
 sweep end to end (slow)."""
 
+import copy
 import json
 import os
 import pathlib
@@ -460,6 +461,35 @@ def test_carried_records_refuse_another_arm_or_a_clash(tmp_path):
     assert json.loads(clash.read_text())["accuracy"] == 99.0  # nothing replaced
     with pytest.raises(ExperimentError, match="--records_from folder .* does not exist"):
         carried.bring_in(config, tmp_path / "absent", tmp_path / "new")
+
+
+def test_records_of_an_arm_whose_config_file_changed_are_refused(tmp_path, monkeypatch):
+    """Same arm name and overrides, but the arm's config file now resolves to another training config
+    (a new default of its variant): neither a rerun in the workdir nor --records_from reuses the records."""
+    config = baseline_experiment(folds="0")
+    sweep(config, tmp_path / "old", FakeTrainer())
+    carried.send_out(config, tmp_path / "old", tmp_path / "kept")
+    record = json.loads((tmp_path / "kept" / "b1" / "honest-image-fold0" / records.FOLD_FILE).read_text())
+    fold = spec.fold_config(spec.arm_config(config, "b1"), spec.runs(config)[0], config.k)
+    assert record["recipe"] == spec.recipe(fold) == spec.recipe(copy.deepcopy(fold))
+    load = spec.load_config
+
+    def new_default(path):
+        loaded = load(path)
+        if path == "configs/baselines.py:tiny":
+            loaded.train.seed += 1
+        return loaded
+
+    monkeypatch.setattr(spec, "load_config", new_default)
+    with pytest.raises(ExperimentError, match="another training config than the arm resolves to now"):
+        carried.bring_in(config, tmp_path / "kept", tmp_path / "new")
+    assert not (tmp_path / "new").exists()
+    trainer = FakeTrainer()
+    with pytest.raises(ExperimentError, match="another training config than the arm resolves to now"):
+        sweep(config, tmp_path / "old", trainer)
+    assert trainer.calls == []
+    old_record = {key: value for key, value in record.items() if key != "recipe"}  # made before recipes were kept
+    spec.check_recipe(old_record, fold, "an old record")
 
 
 # -- the command and the launcher ------------------------------------------------------------------

@@ -14,15 +14,17 @@ scratch for the same 200 steps in every arm, so the arms differ in data, not in 
 protocol, image- and object-wise folds 0, 1 and 2 of 5 by default (42 folds). Three image-wise folds
 took 546 to 1,015 s each on 2 shared cores (results/data_size).
 cpu_demo: both series again with the demo recipe (configs/kosmos_e.py:demo: photo-centre training
-crops, value tokens, the pointing connector; its records in results/
-were made before the demo gained the tower- and slot-angle losses on 2026-11-26: a rerun with
-today's recipe must not carry them in with --records_from), whose answers do depend on the photo: 100, 300 and
+crops, value tokens, the pointing connector), whose answers do depend on the photo: 100, 300 and
 1,000 photos of 16 augmentations, and 4, 8 and 16 augmentations of 300 photos, 800 steps each (the
 demo's own schedule; 300 photos of 16 is the demo), honest protocol, image- and object-wise fold 0
 by default. About 11 to 15 minutes an arm on 2 cores.
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.
+
+The cpu_demo records in results/ were made before configs/kosmos_e.py:demo gained the tower- and
+slot-angle losses (2026-11-26) and before fold records kept their recipe: --records_from cannot
+tell them from today's recipe, so a rerun must not carry them in.
 """
 
 from kosmos_jax.experiments.spec import arm, experiment

@@ -15,13 +15,15 @@ shared with other work, 2026-11-24, results/table1): a fold took 383 to 569 s (K
 705 s (GR-ConvNet) and 506 to 582 s (GG-CNN2) with its build and evaluation; fold 0 of 5 by
 default, both schemes and protocols (16 runs, 8,372 s in all there); --config.folds= runs all five.
 cpu_demo: KOSMOS-E alone with the demo recipe (configs/kosmos_e.py:demo: photo-centre training crops, value
-tokens, the pointing connector; its records in results/
-were made before the demo gained the tower- and slot-angle losses on 2026-11-26: a rerun with
-today's recipe must not carry them in with --records_from; 800 steps), honest protocol, image- and object-wise fold 0: the same folds
+tokens, the pointing connector; 800 steps), honest protocol, image- and object-wise fold 0: the same folds
 and test views as cpu, so its rows sit beside cpu's baselines (results/table1_demo: 701 and 686 s a fold
 on 2 cores, 2026-11-25).
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines
 with a longer schedule, every fold.
+
+The cpu_demo records in results/ were made before configs/kosmos_e.py:demo gained the tower- and
+slot-angle losses (2026-11-26) and before fold records kept their recipe: --records_from cannot
+tell them from today's recipe, so a rerun must not carry them in.
 """
 
 from kosmos_jax.experiments.spec import arm, experiment

@@ -13,13 +13,15 @@ configs/kosmos_e.py:demo_kosmos2 trained from scratch for 200 steps, max_length 
 about 120 tokens); honest protocol, image-wise folds 0, 1 and 2 of 5 by default (12 folds). Fold 0 of
 the four arms took 514 to 775 s a fold, 2,536 s in all, on 2 shared cores (results/table2).
 cpu_demo: the same four mixes with the demo recipe (configs/kosmos_e.py:demo: photo-centre training crops,
-value tokens, the pointing connector; its records in results/
-were made before the demo gained the tower- and slot-angle losses on 2026-11-26: a rerun with
-today's recipe must not carry them in with --records_from; 800 steps), 4 augmentations a training photo as cpu, max_length 128
+value tokens, the pointing connector; 800 steps), 4 augmentations a training photo as cpu, max_length 128
 (value tokens make answers shorter than digits); honest protocol, image-wise fold 0 (results/table2_demo:
 757 to 885 s an arm on 2 cores, 2026-11-25).
 paper: configs/kosmos_e.py:paper (Cornell with KOSMOS-E's annotations, KOSMOS-2 initialisation:
 --config.init_from), both protocols, image-wise, every fold.
+
+The cpu_demo records in results/ were made before configs/kosmos_e.py:demo gained the tower- and
+slot-angle losses (2026-11-26) and before fold records kept their recipe: --records_from cannot
+tell them from today's recipe, so a rerun must not carry them in.
 """
 
 from kosmos_jax.experiments.spec import arm, experiment

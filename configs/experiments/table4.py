@@ -7,13 +7,15 @@ cpu: synthetic scenes (the demo's 300 photos and 16 augmentations), instruction 
 KOSMOS-E from configs/kosmos_e.py:demo_kosmos2 trained from scratch for 300 steps (a 300-step fold of Table I took
 383 to 569 s on 2 shared cores; this config has not been run here); honest protocol, image-wise
 folds 0, 1 and 2 of 5 by default (12 folds). cpu_demo: the same four arms with the demo recipe
-(configs/kosmos_e.py:demo: photo-centre training crops, value tokens, the pointing connector; its records in results/
-were made before the demo gained the tower- and slot-angle losses on 2026-11-26: a rerun with
-today's recipe must not carry them in with --records_from; 800
+(configs/kosmos_e.py:demo: photo-centre training crops, value tokens, the pointing connector; 800
 steps), honest protocol, image-wise fold 0; its individual_code arm is the demo itself, and
 joint_radians alone takes sequences of 96 tokens (its answers need 89, the demo's length is 88). paper:
 configs/kosmos_e.py:paper (Cornell, every instruction kind, KOSMOS-2 initialisation:
 --config.init_from), both protocols, image-wise, every fold.
+
+The cpu_demo records in results/ were made before configs/kosmos_e.py:demo gained the tower- and
+slot-angle losses (2026-11-26) and before fold records kept their recipe: --records_from cannot
+tell them from today's recipe, so a rerun must not carry them in.
 """
 
 from kosmos_jax.experiments.spec import arm, experiment

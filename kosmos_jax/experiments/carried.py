@@ -8,7 +8,8 @@ A workdir holds checkpoints and datasets (gigabytes) and is gone with its machin
 workdir into a folder of the same layout (<arm>/<protocol>-<scheme>-fold<i>/fold.json), one that
 can be committed; `bring_in` copies them back into a new workdir, where the runner then skips those
 folds and aggregates them with the ones it trains. A record is never replaced by a different one,
-and one made by another arm (training config or overrides changed since) is refused.
+and one made by another arm (training config or overrides changed since, or the config file
+behind them: the record's recipe) is refused.
 """
 
 from __future__ import annotations
@@ -37,13 +38,17 @@ def copy_records(config, source, target, *, check_arm: bool) -> list[str]:
     """Copy the experiment's fold records from `source` to `target` where `target` has none;
     returns the runs copied. Every record is checked before any is written: a different record
     already at `target` (or, with `check_arm`, one made by another arm) copies nothing."""
-    todo = []
+    todo, arms = [], {}
     for run in spec.runs(config, every=True):
         record = records.read_record(run.workdir(source))
         if record is None:
             continue
         if check_arm:
-            check_same_arm(config, run, record, run.workdir(source) / records.FOLD_FILE)
+            where = run.workdir(source) / records.FOLD_FILE
+            check_same_arm(config, run, record, where)
+            if run.arm not in arms:
+                arms[run.arm] = spec.arm_config(config, run.arm)
+            spec.check_recipe(record, spec.fold_config(arms[run.arm], run, config.k), where)
         present = records.read_record(run.workdir(target))
         if present is not None and present != record:
             raise spec.ExperimentError(f"{run.workdir(target) / records.FOLD_FILE} already holds another record of "

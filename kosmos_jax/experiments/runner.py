@@ -104,7 +104,7 @@ def run_fold(config, run: spec.Run, fold_config, root, *, train: Callable, evalu
     record = {
         "experiment": config.name, "arm": run.arm, "protocol": run.protocol, "scheme": run.scheme, "fold": run.fold,
         "k": config.k, "series": entry.series, "arm_config": entry.config, "overrides": spec.dotted(entry.overrides),
-        "task": spec.task_of(fold_config), "workdir": str(workdir),
+        "task": spec.task_of(fold_config), "recipe": spec.recipe(fold_config), "workdir": str(workdir),
         "accuracy": results["accuracy"], "by_kind": results.get("by_kind", {}), "by_scene": results.get("by_scene", {}),
         "eval": {key: results.get(key) for key in ("step", "split", "instructions", "examples", "protocol", "backend")},
         "unconstrained": results.get("unconstrained"),
@@ -146,7 +146,9 @@ def run_experiment(config, workdir, *, train: Callable | None = None, evaluate: 
     say(f"[{now()}] experiment {config.name}: {len(chosen)} folds in {root}")
     for number, run in enumerate(chosen, 1):
         where = run.workdir(root)
-        if records.read_record(where) is not None:
+        record = records.read_record(where)
+        if record is not None:
+            spec.check_recipe(record, fold_configs[run], where / records.FOLD_FILE)
             say(f"[{now()}] ({number}/{len(chosen)}) {run.name} done, skipped ({where})")
             skipped += 1
             continue

@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import hashlib
 import importlib.util
+import json
 import pathlib
 
 import ml_collections
@@ -231,6 +233,24 @@ def fold_config(base, run: Run, k: int) -> ml_collections.ConfigDict:
     for key, value in zip(FOLD_FIELDS[task_of(config)], (run.protocol, run.scheme, run.fold, k)):
         set_field(config, key, value, f"{run.name}: fold settings")
     return config
+
+
+def recipe(fold_config) -> str:
+    """A fingerprint of a fold's resolved training config, init_from left out (a path on one machine).
+    A fold's record keeps it: a record of the same arm name and overrides, made before the arm's config
+    file changed (a new default of its variant), has another."""
+    leaves = {key: value for key, value in dotted(fold_config).items() if key != "init_from"}
+    return hashlib.sha256(json.dumps(leaves, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def check_recipe(record: dict, fold_config, where) -> None:
+    """Refuse a fold's record made with another recipe than `fold_config`'s. Records made before
+    recipes were recorded (2026-11-26) carry none and cannot be checked."""
+    made = record.get("recipe")
+    if made is not None and made != recipe(fold_config):
+        raise ExperimentError(f"{where} was made by arm {record.get('arm')!r} with another training config than "
+                              f"the arm resolves to now (its config file changed since): its figures would be "
+                              f"filed under the wrong recipe; move it aside to train the fold again")
 
 
 def runs(config, every: bool = False) -> list[Run]:
