@@ -1,7 +1,7 @@
 """The trainer's full step (forward, backward, clipping, AdamW) of one model size on whatever backend jax
 finds, with its MFU by the model's own FLOPs: one JSON record per run.
 
-    python benchmarks/step_mfu.py --size kosmos2 --dtype bfloat16 --scan --remat --batch 16 --length 256 \
+    python benchmarks/step_mfu.py --size kosmos2 --dtype bfloat16 --scan --remat --batch 16 --length 256 [--attention fused] \
         --out results/performance/RECORD.json
     GLIBC_TUNABLES=glibc.malloc.hugetlb=1 .venv/bin/python benchmarks/step_mfu.py --size small --batch 8 --length 128
 
@@ -57,7 +57,8 @@ def matmul_rate(dtype: str, n: int) -> float:
 
 
 def model_config(args) -> config_lib.Kosmos2Config:
-    cfg = config_lib.get_config(args.size, compute_dtype=args.dtype, scan_layers=args.scan, remat=args.remat)
+    cfg = config_lib.get_config(args.size, compute_dtype=args.dtype, scan_layers=args.scan, remat=args.remat,
+                                attention=args.attention)
     if args.text_attention_dropout is not None:
         cfg = cfg.replace(text=dataclasses.replace(cfg.text, attention_dropout=args.text_attention_dropout))
     return cfg
@@ -99,7 +100,7 @@ def record(args) -> dict:
     return {
         "device": device.device_kind, "platform": device.platform, "devices": jax.device_count(),
         "jax": jax.__version__, "size": args.size, "batch": args.batch, "length": args.length,
-        "dtype": args.dtype, "remat": args.remat, "scan": args.scan,
+        "dtype": args.dtype, "remat": args.remat, "scan": args.scan, "attention": args.attention,
         "text_attention_dropout": cfg.text.attention_dropout,
         "step_s": round(run["step_s"], 5), "compile_s": round(run["compile_s"], 1),
         "tokens_per_s": round(args.batch * args.length / run["step_s"], 1),
@@ -121,6 +122,8 @@ def main() -> None:
     parser.add_argument("--length", type=int, default=128)
     parser.add_argument("--scan", action=argparse.BooleanOptionalAction, default=False)
     parser.add_argument("--remat", action=argparse.BooleanOptionalAction, default=False)
+    parser.add_argument("--attention", default="einsum", choices=config_lib.ATTENTION_KERNELS,
+                        help="the model's attention kernel (fused: cuDNN's flash kernel on a GPU)")
     parser.add_argument("--text-attention-dropout", type=float, default=None,
                         help="override the decoder's attention dropout (the size's own by default)")
     parser.add_argument("--repeats", type=int, default=5, help="timed steps; the best is kept")

@@ -68,6 +68,7 @@ def model_config(size: str, vision: dict | None = None, text: dict | None = None
     model.compute_dtype = "float32"
     model.remat = False
     model.scan_layers = False
+    model.attention = "einsum"  # or "fused": jax.nn.dot_product_attention (cuDNN's flash kernel on a GPU)
     model.magneto_init = True
     model.connector_dense_std = placeholder(float)  # None: KOSMOS-2 init (0.02); from scratch, try 1.0
     model.connector_grid_code = 0.0  # 0: KOSMOS-2's connector; > 0: centred tokens + a grid-cell code (from scratch)

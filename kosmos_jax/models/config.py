@@ -54,6 +54,9 @@ class TextConfig:
     eos_token_id: int = 2
 
 
+ATTENTION_KERNELS = ("einsum", "fused")
+
+
 @dataclasses.dataclass(frozen=True)
 class Kosmos2Config:
     vision: VisionConfig = VisionConfig()
@@ -77,6 +80,11 @@ class Kosmos2Config:
     # jax.jit/grad/lax.scan, call a model merged there (nnx.merge(..., copy=True) for closed-over state).
     scan_layers: bool = False
     remat: bool = False  # recompute each block's activations in the backward pass (less memory)
+    # "einsum": scores [B, H, T, S] made and kept in float32 (the program is plain XLA everywhere);
+    # "fused": jax.nn.dot_product_attention, which picks cuDNN's flash kernel on a GPU where it can
+    # (no scores kept) and XLA's elsewhere. An active attention dropout takes the einsum path: the
+    # fused kernels draw no dropout.
+    attention: str = "einsum"
 
     @property
     def dtype(self):
@@ -94,6 +102,10 @@ class Kosmos2Config:
 
     def replace(self, **changes) -> "Kosmos2Config":
         return dataclasses.replace(self, **changes)
+
+    def __post_init__(self):
+        if self.attention not in ATTENTION_KERNELS:
+            raise ValueError(f"attention must be one of {ATTENTION_KERNELS}, got {self.attention!r}")
 
     def with_vocab_size(self, vocab_size: int) -> "Kosmos2Config":
         return self.replace(text=dataclasses.replace(self.text, vocab_size=vocab_size))

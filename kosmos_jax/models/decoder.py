@@ -23,8 +23,9 @@ from kosmos_jax.models.sharding import constrain, logical
 class TextAttention(nnx.Module):
     """KosmosTextAttention: biased q/k/v/out projections, optional Sub-LN before out_proj."""
 
-    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, *, inner_layernorm: bool):
+    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, *, inner_layernorm: bool, attention: str = "einsum"):
         d = cfg.embed_dim
+        self.kernel = attention
         self.num_heads = cfg.attention_heads
         self.k_proj = dense(d, d, ("embed", "heads"), rngs, std=cfg.init_std, dtype=dtype)
         self.v_proj = dense(d, d, ("embed", "heads"), rngs, std=cfg.init_std, dtype=dtype)
@@ -45,7 +46,7 @@ class TextAttention(nnx.Module):
             k = constrain(jax.lax.dynamic_update_slice(k_cache, k.astype(k_cache.dtype), (0, index, 0, 0)), HEADS)
             v = constrain(jax.lax.dynamic_update_slice(v_cache, v.astype(v_cache.dtype), (0, index, 0, 0)), HEADS)
             layer_cache = (k, v)
-        out = dot_product_attention(q, k, v, mask, self.attn_dropout)
+        out = dot_product_attention(q, k, v, mask, self.attn_dropout, self.kernel)
         out = out.reshape(*out.shape[:2], -1)
         if self.inner_attn_ln is not None:
             out = self.inner_attn_ln(out)
@@ -67,8 +68,8 @@ class TextFFN(nnx.Module):
 
 
 class TextBlock(nnx.Module):
-    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0):
-        self.self_attn = TextAttention(cfg, dtype, rngs, inner_layernorm=True)
+    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, attention: str = "einsum"):
+        self.self_attn = TextAttention(cfg, dtype, rngs, inner_layernorm=True, attention=attention)
         self.self_attn_layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)
         self.ffn = TextFFN(cfg, dtype, rngs)
         self.final_layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)  # the pre-FFN LN
@@ -121,7 +122,7 @@ def _block_step(layer: TextBlock, x, layer_cache, mask, index):
 
 class TextTransformer(nnx.Module):
     def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, *,
-                 scan_layers: bool = False, remat: bool = False):
+                 scan_layers: bool = False, remat: bool = False, attention: str = "einsum"):
         self.cfg = cfg
         self.dtype = dtype
         self.scan_layers = scan_layers
@@ -134,9 +135,9 @@ class TextTransformer(nnx.Module):
             rngs=rngs,
         )
         if scan_layers:
-            self.layers = stack_blocks(lambda r: TextBlock(cfg, dtype, r, magneto_gain), cfg.layers, rngs)
+            self.layers = stack_blocks(lambda r: TextBlock(cfg, dtype, r, magneto_gain, attention), cfg.layers, rngs)
         else:
-            self.layers = nnx.List([TextBlock(cfg, dtype, rngs, magneto_gain) for _ in range(cfg.layers)])
+            self.layers = nnx.List([TextBlock(cfg, dtype, rngs, magneto_gain, attention) for _ in range(cfg.layers)])
         self.layer_norm = LayerNorm(cfg.embed_dim, cfg.layer_norm_eps, rngs)
         self.dropout = Dropout(cfg.dropout, rngs=rngs)
 
@@ -183,9 +184,9 @@ class TextTransformer(nnx.Module):
 class TextForCausalLM(nnx.Module):
     """`text_model`: the decoder plus the LM head tied to `embed_tokens` (no parameter of its own)."""
 
-    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, *,
-                 scan_layers: bool = False, remat: bool = False):
-        self.model = TextTransformer(cfg, dtype, rngs, magneto_gain, scan_layers=scan_layers, remat=remat)
+    def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, **layout):
+        """`layout`: TextTransformer's scan_layers, remat and attention."""
+        self.model = TextTransformer(cfg, dtype, rngs, magneto_gain, **layout)
 
     def logits(self, hidden):
         table = self.model.embed_tokens.embedding[...]

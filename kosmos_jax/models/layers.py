@@ -105,12 +105,17 @@ def attention_scores(q, k):
     return jnp.einsum("bhtd,bhsd->bhts", q, k, preferred_element_type=jnp.float32) * q.shape[-1] ** -0.5
 
 
-def dot_product_attention(q, k, v, mask, dropout: Dropout | None = None):
+def dot_product_attention(q, k, v, mask, dropout: Dropout | None = None, kernel: str = "einsum"):
     """q [B,T,H,D], k/v [B,S,H,D], mask broadcastable to [B,H,T,S] (True = attend) or None.
 
     Scores and softmax in float32. A row with no allowed key (a padding query) gets uniform
-    weights instead of NaN, as PyTorch's additive finfo.min mask does.
+    weights instead of NaN, as PyTorch's additive finfo.min mask does. `kernel` "fused" hands the
+    whole product to jax.nn.dot_product_attention (cuDNN where it can, XLA elsewhere), unless
+    `dropout` is active.
     """
+    if kernel == "fused" and not _active(dropout):
+        # jax masks with a large finite negative: a row with no allowed key gets uniform weights too
+        return constrain(jax.nn.dot_product_attention(q, k, v, mask=mask), HEADS)
     scores = attention_scores(q, k)
     v = v.transpose(0, 2, 1, 3)
     if mask is not None:
@@ -120,6 +125,10 @@ def dot_product_attention(q, k, v, mask, dropout: Dropout | None = None):
         weights = dropout(weights)
     out = jnp.einsum("bhts,bhsd->bhtd", weights.astype(v.dtype), v).transpose(0, 2, 1, 3)
     return constrain(out, HEADS)
+
+
+def _active(dropout: Dropout | None) -> bool:
+    return dropout is not None and dropout.rate > 0.0 and dropout.deterministic is False
 
 
 # -- stacks of blocks: a Python list (one copy of each block in the program) or one scanned module --

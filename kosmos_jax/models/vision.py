@@ -44,8 +44,9 @@ class VisionEmbeddings(nnx.Module):
 
 
 class VisionAttention(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs):
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, attention: str = "einsum"):
         d = cfg.hidden_size
+        self.kernel = attention
         in_std = d**-0.5 * (2 * cfg.num_hidden_layers) ** -0.5
         self.num_heads = cfg.num_attention_heads
         self.k_proj = dense(d, d, ("embed", "heads"), rngs, std=in_std, dtype=dtype)
@@ -56,7 +57,7 @@ class VisionAttention(nnx.Module):
 
     def __call__(self, x):
         q, k, v = (split_heads(p(x), self.num_heads) for p in (self.q_proj, self.k_proj, self.v_proj))
-        out = dot_product_attention(q, k, v, mask=None, dropout=self.attn_dropout)
+        out = dot_product_attention(q, k, v, mask=None, dropout=self.attn_dropout, kernel=self.kernel)
         return self.out_proj(out.reshape(*out.shape[:2], -1))
 
 
@@ -72,8 +73,8 @@ class VisionMLP(nnx.Module):
 
 
 class VisionEncoderLayer(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs):
-        self.self_attn = VisionAttention(cfg, dtype, rngs)
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, attention: str = "einsum"):
+        self.self_attn = VisionAttention(cfg, dtype, rngs, attention)
         self.layer_norm1 = LayerNorm(cfg.hidden_size, cfg.layer_norm_eps, rngs)
         self.mlp = VisionMLP(cfg, dtype, rngs)
         self.layer_norm2 = LayerNorm(cfg.hidden_size, cfg.layer_norm_eps, rngs)
@@ -89,13 +90,14 @@ def _encoder_step(layer, x, _per_layer):
 
 
 class VisionEncoder(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False):
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False,
+                 attention: str = "einsum"):
         self.scan_layers = scan_layers
         self.remat = remat
         if scan_layers:
-            self.layers = stack_blocks(lambda r: VisionEncoderLayer(cfg, dtype, r), cfg.num_hidden_layers, rngs)
+            self.layers = stack_blocks(lambda r: VisionEncoderLayer(cfg, dtype, r, attention), cfg.num_hidden_layers, rngs)
         else:
-            self.layers = nnx.List([VisionEncoderLayer(cfg, dtype, rngs) for _ in range(cfg.num_hidden_layers)])
+            self.layers = nnx.List([VisionEncoderLayer(cfg, dtype, rngs, attention) for _ in range(cfg.num_hidden_layers)])
 
     def __call__(self, x):
         if self.scan_layers:
@@ -108,16 +110,17 @@ class VisionEncoder(nnx.Module):
 
 
 class VisionTransformer(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False):
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, **layout):
         self.embeddings = VisionEmbeddings(cfg, dtype, rngs)
         self.pre_layrnorm = LayerNorm(cfg.hidden_size, cfg.layer_norm_eps, rngs)  # sic, the checkpoint's name
-        self.encoder = VisionEncoder(cfg, dtype, rngs, scan_layers=scan_layers, remat=remat)
+        self.encoder = VisionEncoder(cfg, dtype, rngs, **layout)
         self.post_layernorm = LayerNorm(cfg.hidden_size, cfg.layer_norm_eps, rngs)
 
 
 class VisionModel(nnx.Module):
-    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False):
-        self.model = VisionTransformer(cfg, dtype, rngs, scan_layers=scan_layers, remat=remat)
+    def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, **layout):
+        """`layout`: VisionEncoder's scan_layers, remat and attention."""
+        self.model = VisionTransformer(cfg, dtype, rngs, **layout)
 
     def __call__(self, pixels: jax.Array) -> jax.Array:
         """Image features for the connector: post_layernorm on ALL tokens, then L2-normalised per token."""

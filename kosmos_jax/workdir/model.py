@@ -23,4 +23,5 @@ def model_config(model: ml_collections.ConfigDict, vocab_size: int) -> model_con
     return base.replace(vision=vision, text=text, latent_query_num=model.latent_query_num,
                         compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
                         scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"),
-                        connector_grid_code=model.get("connector_grid_code", 0.0))
+                        connector_grid_code=model.get("connector_grid_code", 0.0),
+                        attention=model.get("attention", "einsum"))
