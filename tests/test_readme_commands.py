@@ -263,12 +263,14 @@ def test_every_flag_is_one_the_module_takes(words):
 
 @pytest.mark.parametrize("words", CHECKED, ids=label)
 def test_checked_commands_name_what_exists(words):
-    """A command not run here: its program (make target, module, launch file) exists."""
+    """A command not run here: its program (make target, module, launch file, benchmark script) exists."""
     _, argv = split_env(words)
     if argv[0] == "make":
         assert argv[1] in make_targets()
     elif argv[0] == "source" or argv[0].endswith("device_env.sh"):
         assert (REPO / argv[-1 if argv[0] == "source" else 0]).is_file()
+    elif argv[0] == "python" and argv[1].startswith("benchmarks/"):
+        assert (REPO / argv[1]).is_file(), f"{label(words)}: no such benchmark"
     else:
         module = module_of(argv)
         assert module and runnable(module), f"{label(words)}: neither a make target, a launcher nor a module"
