@@ -67,6 +67,11 @@ class Dropout(nnx.Dropout):
     `dropout_per_example`, is drawn row by row from each example's own key; outside it, nnx's one
     mask over the whole input. Off (rate 0 or deterministic) it returns its input, as nnx's does."""
 
+    @property
+    def active(self) -> bool:
+        """Whether a call without a `deterministic` argument drops anything."""
+        return self.deterministic is False and self.rate > 0.0
+
     def __call__(self, inputs, *, deterministic: bool | None = None, rngs=None):
         example_ids = _EXAMPLE_IDS.get()
         deterministic = self.deterministic if deterministic is None else deterministic
@@ -113,7 +118,7 @@ def dot_product_attention(q, k, v, mask, dropout: Dropout | None = None, kernel:
     whole product to jax.nn.dot_product_attention (cuDNN where it can, XLA elsewhere), unless
     `dropout` is active.
     """
-    if kernel == "fused" and not _active(dropout):
+    if kernel == "fused" and not (dropout is not None and dropout.active):
         # jax masks with a large finite negative: a row with no allowed key gets uniform weights too
         return constrain(jax.nn.dot_product_attention(q, k, v, mask=mask), HEADS)
     scores = attention_scores(q, k)
@@ -125,10 +130,6 @@ def dot_product_attention(q, k, v, mask, dropout: Dropout | None = None, kernel:
         weights = dropout(weights)
     out = jnp.einsum("bhts,bhsd->bhtd", weights.astype(v.dtype), v).transpose(0, 2, 1, 3)
     return constrain(out, HEADS)
-
-
-def _active(dropout: Dropout | None) -> bool:
-    return dropout is not None and dropout.rate > 0.0 and dropout.deterministic is False
 
 
 # -- stacks of blocks: a Python list (one copy of each block in the program) or one scanned module --
