@@ -8,6 +8,8 @@
 Variants:
   tiny   transformers' test-sized model, a small synthetic set, seconds a step (the tests use it)
   demo   what `make demo` trains: a model small enough to learn something in minutes on 2 cores
+  demo_finetune  demo's data and schedule from a pretraining run (configs/pretrain.py:demo):
+         give --config.init_from=ITS_WORKDIR (its tokenizer and model come with it)
   demo_kosmos2  the same model with KOSMOS-2's connector, digits and label-centred crops (the
          experiments' cpu arms; its answers ignore the photo)
   small  the `small` model of kosmos_jax.models.config
@@ -28,7 +30,7 @@ from ml_collections.config_dict import placeholder
 
 from kosmos_jax.models.config import TextConfig, VisionConfig
 
-VARIANTS = ("tiny", "demo", "demo_kosmos2", "small", "paper")
+VARIANTS = ("tiny", "demo", "demo_finetune", "demo_kosmos2", "small", "paper")
 
 
 def data_config(**changes) -> ml_collections.ConfigDict:
@@ -43,7 +45,7 @@ def data_config(**changes) -> ml_collections.ConfigDict:
         recipe="random", kinds="non", seed=0, fold_seed=placeholder(int), train_crop=placeholder(str),
         test_crop=placeholder(str), representation="xya", angle_code=True, individual=True, loss_on="target",
         target_grasp="random", numbers="digits", max_length=128, overflow="error", tokenizer=placeholder(str),
-        text_pieces=1000, unambiguous=True, batch_size=8,
+        tokenizer_scheme="fairseq", text_pieces=1000, unambiguous=True, batch_size=8,
         validation_fraction=0.0,  # > 0: that share of the training photos held out as split "validation" (honest)
     ))
     data.update(changes.pop("top", {}))
@@ -134,7 +136,10 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         raise ValueError(f"unknown variant {variant!r} of configs/kosmos_e.py; expected one of {VARIANTS}")
     config = ml_collections.ConfigDict()
     config.variant = variant
-    config.init_from = ""  # a KOSMOS-2 folder (config.json + model.safetensors, read by weights.load_pretrained)
+    # a KOSMOS-2 folder (config.json + model.safetensors, read by weights.load_pretrained), or a run's workdir
+    # (train/run_start.py: its checkpoint init_step's parameters, -1 = the newest, and its tokenizer)
+    config.init_from = ""
+    config.init_step = -1
     config.require_init = False
     config.mesh = mesh_config()
     if variant == "tiny":
@@ -156,6 +161,11 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         # 800 steps: about 10 minutes of `make demo`'s 15 on 2 quiet cores (0.7 s a step)
         config.train = train_config(steps=800, batch_size=32, log_every=10, eval_every=400, checkpoint_every=100,
                                     pointing_loss=1.0, tower_angle_loss=4.0, slot_angle_loss=1.0)
+    elif variant == "demo_finetune":
+        demo = get_config("demo")
+        config.data, config.optimizer, config.train = demo.data, demo.optimizer, demo.train
+        config.model = demo_model(connector_dense_std=1.0, connector_grid_code=3.0)  # embeddings: the run's
+        config.require_init = True
     elif variant == "demo_kosmos2":
         # The demo model with KOSMOS-2's connector and init, digit numbers and label-centred training crops:
         # what `make demo` trained before 2026-11-25 and what the experiments' cpu arms were run with. Its

@@ -336,7 +336,8 @@ def test_identity_covers_every_data_setting_and_input(source, tmp_path):
                "kinds": ("non",), "seed": 1, "fold_seed": 3, "train_crop": "random", "test_crop": "gt_centroid",
                "representation": "xywha", "angle_code": False, "individual": False, "loss_on": "instruction",
                "target_grasp": "first", "numbers": "values", "max_length": 100, "overflow": "truncate",
-               "text_pieces": 500, "unambiguous": False, "batch_size": 4, "validation_fraction": 0.2}
+               "text_pieces": 500, "unambiguous": False, "batch_size": 4, "validation_fraction": 0.2,
+               "tokenizer_scheme": "native"}
     assert set(changes) | {"source", "out", "annotations", "tokenizer", "overwrite"} == {
         f.name for f in build_module.dataclasses.fields(BuildConfig)}  # a new field needs a line here
     keys = [key(build_module.dataclasses.replace(base, **{name: value})) for name, value in changes.items()]

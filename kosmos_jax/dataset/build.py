@@ -71,7 +71,7 @@ NOT_DATA = ("out", "overwrite")
 INPUT_FILES = ("source", "annotations", "tokenizer")
 # BuildConfig fields added after datasets were built and recorded: left out of the identity at the value
 # that makes the data of before (so those datasets, their folder names and the runs on them stay valid)
-LEFT_OUT_AT = {"validation_fraction": 0.0}
+LEFT_OUT_AT = {"validation_fraction": 0.0, "tokenizer_scheme": "fairseq"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +99,7 @@ class BuildConfig:
     max_length: int = 192  # KOSMOS-E's strategy sentences run to ~100 text tokens
     overflow: str = "error"
     tokenizer: str | None = None
+    tokenizer_scheme: str = "fairseq"  # of --tokenizer: "fairseq" (KOSMOS-2's) or "native" (a run's own, trained here)
     text_pieces: int = 1000
     unambiguous: bool = True
     batch_size: int = 8
@@ -354,7 +355,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     if not tokenize:
         return identity_lib.normalised(stats)
     if config.tokenizer:
-        tokenizer = load_tokenizer(config.tokenizer, scheme="fairseq", numbers=config.numbers)
+        tokenizer = load_tokenizer(config.tokenizer, scheme=config.tokenizer_scheme, numbers=config.numbers)
     else:
         tokenizer = train_tokenizer(corpus, numbers=config.numbers, text_pieces=config.text_pieces,
                                     representations=(config.representation,))
@@ -436,6 +437,8 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
     parser.add_argument("--max-length", type=int, default=192, help="tokens per example, image slots included")
     parser.add_argument("--overflow", choices=("error", "truncate"), default="error")
     parser.add_argument("--tokenizer", help="an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
+    parser.add_argument("--tokenizer-scheme", choices=("fairseq", "native"), default="fairseq",
+                        help="ids of --tokenizer: fairseq (KOSMOS-2's) or native (a tokenizer.model a build or run wrote)")
     parser.add_argument("--text-pieces", type=int, default=1000, help="pieces of a trained tokenizer besides the symbols")
     parser.add_argument("--validation-fraction", type=float, default=0.0,
                         help="share of the training photos (object-wise: whole objects) held out as split "
@@ -451,7 +454,8 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
         train_crop=args.train_crop,
         test_crop=args.test_crop, representation=args.representation, angle_code=not args.no_angle_code,
         individual=not args.joint, loss_on=args.loss_on, target_grasp=args.target_grasp, numbers=args.numbers,
-        max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer, text_pieces=args.text_pieces,
+        max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer,
+        tokenizer_scheme=args.tokenizer_scheme, text_pieces=args.text_pieces,
         unambiguous=not args.ambiguous_mosaics, validation_fraction=args.validation_fraction,
         overwrite=args.overwrite)
 

@@ -32,7 +32,7 @@ from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train import distributed
+from kosmos_jax.train import distributed, run_start
 from kosmos_jax.train.baseline_task import baseline_task
 from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
@@ -52,12 +52,13 @@ class RunMismatchError(ValueError):
     """The workdir holds a run of another model or dataset."""
 
 
-def initial_params(config, model_cfg: Kosmos2Config, tokenizer):
-    """Fresh parameters, or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
+def initial_params(config, model_cfg: Kosmos2Config, tokenizer, mesh, description: dict):
+    """Fresh parameters, a run's (config.init_from = its workdir; recorded in `description`["init"]),
+    or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
     value_code = config.model.get("value_token_code", 0.0)  # .get: configs stored before the option
     if not config.init_from:
         if config.get("require_init"):
-            raise ValueError(f"the {config.variant} variant starts from KOSMOS-2's weights: give "
+            raise ValueError(f"the {config.variant} variant starts from loaded weights: give "
                              "--config.init_from=FOLDER (config.json + model.safetensors)")
         model = build(model_cfg, config.train.seed)
         if value_code:
@@ -68,7 +69,11 @@ def initial_params(config, model_cfg: Kosmos2Config, tokenizer):
         return split_model(model)[1]
     if value_code:
         raise ValueError("model.value_token_code sets the start of embeddings trained from scratch; "
-                         "with config.init_from the embeddings are KOSMOS-2's: leave it at 0")
+                         "with config.init_from the embeddings are the loaded ones: leave it at 0")
+    if run_start.is_run(config.init_from):
+        step, params = run_start.run_params(config, model_cfg, mesh)
+        description["init"] = {"from": str(pathlib.Path(config.init_from).resolve()), "step": step}
+        return params
     model = weights.load_pretrained(config.init_from, seed=config.train.seed, compute_dtype=model_cfg.compute_dtype,
                                     remat=model_cfg.remat, scan_layers=model_cfg.scan_layers)
     if model.config.text.vocab_size < model_cfg.text.vocab_size:
@@ -139,6 +144,8 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
 
 def kosmos_task(config, mesh, tx, schedule) -> Task:
     """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
+    if run_start.is_run(config.init_from):
+        run_start.use_run_tokenizer(config)
     dataset = prepare_data(config.data)
     tokenizer = dataset.tokenizer()
     model_cfg = model_config(config.model, tokenizer.vocab_size)
@@ -192,7 +199,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
 
     return Task(
         description=description, batches=batches,
-        init_state=lambda: init_train_state(initial_params(config, model_cfg, tokenizer), tx, mesh),
+        init_state=lambda: init_train_state(initial_params(config, model_cfg, tokenizer, mesh, description), tx, mesh),
         abstract_state=lambda: abstract_train_state(model_cfg, tx, mesh),
         train_step=lambda state, host: train_step(state, distributed.process_batch(
             {k: host[k] for k in TRAIN_KEYS}, sharding)),
@@ -234,7 +241,10 @@ def train(config, workdir) -> dict:
         state = task.init_state()
         start = 0
     else:
-        check_same_run(checkpoints.run_info(latest), task.description, workdir)
+        stored = checkpoints.run_info(latest)
+        check_same_run(stored, task.description, workdir)
+        if "init" in stored:  # the start it was made from, not what config.init_from holds today
+            task.description["init"] = stored["init"]
         state, data_state, _ = checkpoints.restore(latest, task.abstract_state())
         batches.set_state(data_state)
         start = latest

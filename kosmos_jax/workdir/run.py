@@ -85,7 +85,7 @@ def open_run(workdir) -> Run:
         raise RunError(f"{tokenizer_path} is missing: the trainer copies the dataset's tokenizer there; copy it back "
                        f"from the dataset folder ({description.get('dataset_dir')}/tokenizer.model)")
     build = description["data_identity"]["build"]
-    scheme = "native" if build.get("tokenizer") is None else "fairseq"  # as the build chose it
+    scheme = "native" if build.get("tokenizer") is None else build.get("tokenizer_scheme", "fairseq")  # as the build chose it
     tokenizer = load_tokenizer(tokenizer_path, scheme=scheme, numbers=build["numbers"])
     config = ml_collections.ConfigDict(description["config"])
     model = model_config(config.model, tokenizer.vocab_size)

@@ -1,0 +1,87 @@
+"""Fine-tuning from a pretraining run (config.init_from = its workdir, train/run_start.py): the new run
+starts from exactly the parameters of the checkpoint it names, reads its token ids with that run's
+tokenizer, records where it started, and refuses another model or another tokenizer."""
+
+import pathlib
+
+import jax
+import numpy as np
+import pytest
+
+from kosmos_jax.experiments.spec import load_config
+from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.train import trainer
+from kosmos_jax.train.optimizer import make_optimizer
+from kosmos_jax.workdir.run import open_run
+
+pytestmark = pytest.mark.xdist_group("run_start")
+
+
+@pytest.fixture(scope="session")
+def pretrained(tmp_path_factory) -> pathlib.Path:
+    """configs/pretrain.py:tiny trained 2 steps, a checkpoint after each."""
+    config = load_config("configs/pretrain.py:tiny")
+    config.data.root = str(tmp_path_factory.mktemp("pretrain_data"))
+    config.train.steps, config.train.checkpoint_every, config.optimizer.warmup_steps = 2, 1, 1
+    workdir = tmp_path_factory.mktemp("pretrain_run")
+    trainer.train(config, workdir)
+    return workdir
+
+
+def finetune_config(pretrained, root, **changes):
+    config = load_config("configs/kosmos_e.py:tiny")
+    config.data.root = str(root)
+    config.init_from = str(pretrained)
+    config.update(changes)
+    return config
+
+
+def task_of(config):
+    mesh = make_mesh(config.mesh.data, config.mesh.fsdp, config.mesh.tensor)
+    tx, schedule = make_optimizer(config.optimizer, config.train.steps)
+    return trainer.make_task(config, mesh, tx, schedule)
+
+
+def test_a_finetune_starts_from_the_named_checkpoint_with_its_tokenizer(pretrained, tmp_path):
+    config = finetune_config(pretrained, tmp_path, init_step=1)
+    task = task_of(config)
+    state = task.init_state()
+    _, expected = open_run(pretrained).params(1)
+    got, want = jax.tree.leaves(state.params), jax.tree.leaves(expected)
+    assert len(got) == len(want) > 0
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # a copy: bit for bit
+    _, step_2 = open_run(pretrained).params(2)
+    assert any(not np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(want, jax.tree.leaves(step_2)))
+    assert task.description["init"] == {"from": str(pretrained.resolve()), "step": 1}
+    build = task.description["data_identity"]["build"]
+    assert build["tokenizer"]["path"] == str((pretrained / "tokenizer.model").resolve())
+    assert build["tokenizer"]["sha256"] and build["tokenizer_scheme"] == "native"
+
+
+def test_the_newest_checkpoint_by_default(pretrained, tmp_path):
+    task = task_of(finetune_config(pretrained, tmp_path))
+    task.init_state()
+    assert task.description["init"]["step"] == 2
+
+
+def test_another_model_is_refused_naming_the_difference(pretrained, tmp_path):
+    config = finetune_config(pretrained, tmp_path)
+    config.model.text.layers = 3
+    with pytest.raises(ValueError, match="holds another model than this config's: .*layers"):
+        task_of(config).init_state()
+
+
+def test_another_tokenizer_is_refused(pretrained, tmp_path):
+    other = tmp_path / "other.model"
+    other.write_bytes(b"not the run's tokenizer")
+    config = finetune_config(pretrained, tmp_path)
+    config.data.build.tokenizer = str(other)
+    with pytest.raises(ValueError, match="is not the tokenizer of config.init_from"):
+        task_of(config)
+
+
+def test_a_variant_that_needs_a_start_says_what_to_give(tmp_path):
+    config = load_config("configs/kosmos_e.py:demo_finetune")
+    with pytest.raises(ValueError, match="give --config.init_from=FOLDER"):
+        trainer.initial_params(config, None, None, None, {})
