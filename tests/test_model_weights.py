@@ -11,7 +11,8 @@ from flax import nnx
 from safetensors.numpy import load_file, save_file
 
 from kosmos_jax.models import weights
-from kosmos_jax.models.kosmos2 import forward
+from kosmos_jax.models.config import EXTENDED_MODEL_TYPE, TINY, Kosmos2Config
+from kosmos_jax.models.kosmos2 import build, forward
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
 
@@ -147,3 +148,33 @@ def test_half_precision_checkpoints_import_as_float32(tmp_path, dtype, max_shard
         key = weights.hf_key(tuple(path.split(".")))
         expected = weights.from_hf(tuple(path.split(".")), halves[key].astype(np.float32))
         np.testing.assert_array_equal(back[path], expected, err_msg=path)
+
+
+def test_a_grid_code_model_is_written_only_on_opt_in_and_a_kosmos_2_one_alike_either_way(tmp_path):
+    grid = build(TINY.replace(connector_grid_code=3.0))
+    with pytest.raises(ValueError, match=r"extensions=True"):
+        weights.save_pretrained(grid, tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
+    weights.save_pretrained(grid, tmp_path / "grid", extensions=True)
+    written = json.loads((tmp_path / "grid" / "config.json").read_text())
+    assert written["model_type"] == EXTENDED_MODEL_TYPE and written["kosmos_jax"] == {"connector_grid_code": 3.0}
+    assert weights.read_config(tmp_path / "grid").connector_grid_code == 3.0
+    plain = build(TINY)
+    weights.save_pretrained(plain, tmp_path / "plain")
+    weights.save_pretrained(plain, tmp_path / "opted", extensions=True)
+    for name in ("config.json", "model.safetensors"):
+        assert (tmp_path / "plain" / name).read_bytes() == (tmp_path / "opted" / name).read_bytes()
+    assert json.loads((tmp_path / "plain" / "config.json").read_text()) == TINY.to_hf_dict()
+
+
+def test_from_hf_dict_refuses_other_model_types_and_unknown_extensions():
+    data = TINY.to_hf_dict()
+    with pytest.raises(ValueError, match=r"model_type is 'llava'.*expected 'kosmos-2'"):
+        Kosmos2Config.from_hf_dict({**data, "model_type": "llava"})
+    extended = TINY.replace(connector_grid_code=2.0).to_extended_hf_dict()
+    assert Kosmos2Config.from_hf_dict(extended) == TINY.replace(connector_grid_code=2.0)
+    assert Kosmos2Config.from_hf_dict(data) == TINY  # no extension block: KOSMOS-2's connector
+    with pytest.raises(ValueError, match=r"unknown kosmos_jax fields \['warp'\]"):
+        Kosmos2Config.from_hf_dict({**extended, "kosmos_jax": {"connector_grid_code": 2.0, "warp": 1}})
+    with pytest.raises(ValueError, match="needs a 'kosmos_jax' object"):
+        Kosmos2Config.from_hf_dict({**data, "model_type": EXTENDED_MODEL_TYPE})

@@ -55,6 +55,11 @@ class TextConfig:
 
 
 ATTENTION_KERNELS = ("einsum", "fused")
+# config.json of a model transformers' KOSMOS-2 cannot compute (a grid code in its connector): a model
+# type transformers does not know, so it refuses the folder instead of computing other embeddings.
+EXTENDED_MODEL_TYPE = "kosmos_jax-kosmos-2"
+EXTENSIONS_KEY = "kosmos_jax"
+EXTENSION_FIELDS = ("connector_grid_code",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,11 +130,25 @@ class Kosmos2Config:
             "vision_config": vision,
         }
 
+    @property
+    def needs_extensions(self) -> bool:
+        """Whether transformers' KOSMOS-2 would compute another model from to_hf_dict() alone."""
+        return any(getattr(self, name) != getattr(Kosmos2Config, name) for name in EXTENSION_FIELDS)
+
+    def to_extended_hf_dict(self) -> dict[str, Any]:
+        """to_hf_dict() with this project's model type and the fields it lacks (EXTENSION_FIELDS)."""
+        return {**self.to_hf_dict(), "model_type": EXTENDED_MODEL_TYPE,
+                EXTENSIONS_KEY: {name: getattr(self, name) for name in EXTENSION_FIELDS}}
+
     @classmethod
     def from_hf_dict(cls, data: dict[str, Any], source: str = "config.json", **runtime) -> "Kosmos2Config":
-        """Read transformers' Kosmos2Config dict; unknown keys are ignored, unsupported variants refused."""
-        if data.get("model_type") not in (None, "kosmos-2"):
-            raise ValueError(f"{source}: model_type is {data.get('model_type')!r}, expected 'kosmos-2'")
+        """Read transformers' Kosmos2Config dict, or this project's extended one (to_extended_hf_dict);
+        unknown keys are ignored, unsupported variants refused."""
+        if data.get("model_type") not in (None, "kosmos-2", EXTENDED_MODEL_TYPE):
+            raise ValueError(f"{source}: model_type is {data.get('model_type')!r}, expected 'kosmos-2' "
+                             f"(or {EXTENDED_MODEL_TYPE!r}, this project's)")
+        if data.get("model_type") == EXTENDED_MODEL_TYPE:
+            runtime = {**_extensions(data.get(EXTENSIONS_KEY), source), **runtime}
         text_d, vision_d = dict(data.get("text_config") or {}), dict(data.get("vision_config") or {})
         act = text_d.get("activation_function", "gelu")
         if act != "gelu":
@@ -148,6 +167,15 @@ class Kosmos2Config:
         text = TextConfig(**{f.name: text_d[f.name] for f in dataclasses.fields(TextConfig) if text_d.get(f.name) is not None})
         vision = VisionConfig(**{f.name: vision_d[f.name] for f in dataclasses.fields(VisionConfig) if f.name in vision_d})
         return cls(vision=vision, text=text, latent_query_num=data.get("latent_query_num", 64), **runtime)
+
+
+def _extensions(block: Any, source: str) -> dict[str, Any]:
+    if not isinstance(block, dict):
+        raise ValueError(f"{source}: model_type {EXTENDED_MODEL_TYPE!r} needs a {EXTENSIONS_KEY!r} object")
+    unknown = sorted(set(block) - set(EXTENSION_FIELDS))
+    if unknown:  # a later version's extension: ignoring it would compute another model
+        raise ValueError(f"{source}: unknown {EXTENSIONS_KEY} fields {unknown}; known: {list(EXTENSION_FIELDS)}")
+    return dict(block)
 
 
 # transformers' test sizes (tests/models/kosmos2/test_modeling_kosmos2.py), used by the parity fixture.

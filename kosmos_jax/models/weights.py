@@ -205,17 +205,23 @@ def model_tensors(model: Kosmos2) -> dict[str, np.ndarray]:
     return {hf_key(path): to_hf(path, value) for path, value in arrays.items()}
 
 
-def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes: int | None = None) -> pathlib.Path:
+def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes: int | None = None,
+                    extensions: bool = False) -> pathlib.Path:
     """Write config.json and model.safetensors (or shards + index when over `max_shard_bytes`).
 
-    The tied LM head is not written, as transformers does for tied weights."""
-    if model.config.connector_grid_code:
+    The tied LM head is not written, as transformers does for tied weights. A model transformers'
+    KOSMOS-2 cannot compute (a grid code in its connector) is refused unless `extensions`: its
+    config.json then names this project's model type (config.EXTENDED_MODEL_TYPE), which transformers
+    refuses and read_config reads back. A model without such a field is written alike either way."""
+    if model.config.needs_extensions and not extensions:
         raise ValueError(f"this model's connector adds a grid code (connector_grid_code="
                          f"{model.config.connector_grid_code}), which transformers' KOSMOS-2 lacks: its export would "
-                         "compute other image embeddings")
+                         "compute other image embeddings; save_pretrained(..., extensions=True) writes a folder "
+                         "only this project reads")
+    config = model.config.to_extended_hf_dict() if model.config.needs_extensions else model.config.to_hf_dict()
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "config.json").write_text(json.dumps(model.config.to_hf_dict(), indent=2) + "\n")
+    (folder / "config.json").write_text(json.dumps(config, indent=2) + "\n")
     tensors = model_tensors(model)
     metadata = {"format": "pt"}
     total = sum(t.nbytes for t in tensors.values())
