@@ -184,6 +184,15 @@ def test_a_pretrained_folder_of_the_same_weights_predicts_the_same(predictor, wo
                                                 scheme="native", format_config=run.format_config,
                                                 grasp_size=predictor.grasp_size, mesh=one_device())
     assert pretrained.predict(photo[1], "Grasp the red mug.") == predictor.predict(photo[1], "Grasp the red mug.")
+    alone = GraspPredictor.from_pretrained(tmp_path / "exported", mesh=one_device())  # its kosmos_e.json, tokenizer
+    assert (alone.format_config, alone.protocol) == (run.format_config, "honest")
+    assert alone.grasp_size == predictor.grasp_size
+    assert alone.predict(photo[1], "Grasp the red mug.") == predictor.predict(photo[1], "Grasp the red mug.")
+    with pytest.raises(FileExistsError, match="not an empty folder"):  # an older export's files would mix in
+        export_pretrained(workdir, tmp_path / "exported")
+    (tmp_path / "exported" / "kosmos_e.json").unlink()
+    with pytest.raises(RunFolderError, match="holds no kosmos_e.json"):
+        GraspPredictor.from_pretrained(tmp_path / "exported")
     with pytest.raises(RunFolderError, match="scheme='native'"):  # the project's tokenizer read as KOSMOS-2's
         GraspPredictor.from_pretrained(tmp_path / "exported", workdir / "tokenizer.model", scheme="fairseq")
     (tmp_path / "exported" / "model.safetensors").unlink()

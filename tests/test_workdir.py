@@ -60,7 +60,7 @@ def test_scoring_and_prediction_import_nothing_of_the_trainer():
     code = ("import sys, kosmos_jax.predict, kosmos_jax.predict.predictor, kosmos_jax.predict.__main__, "
             "kosmos_jax.evaluate.__main__, kosmos_jax.evaluate.run_scores, kosmos_jax.evaluate.overlays, "
             "kosmos_jax.scoring.model_scores, "
-            "kosmos_jax.workdir.run, kosmos_jax.workdir.export; "
+            "kosmos_jax.workdir.run, kosmos_jax.workdir.export, kosmos_jax.workdir.pretrained; "
             "print(sorted(m for m in sys.modules if m.startswith('kosmos_jax.train')))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]

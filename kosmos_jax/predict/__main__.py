@@ -2,6 +2,7 @@
 
     python -m kosmos_jax.predict --workdir=runs/demo --image=photo.png --instruction="Grasp the red mug." \\
         [--step=N] [--out=overlay.png] [--json]
+    python -m kosmos_jax.predict --pretrained=EXPORTED --image=...     # a run exported by kosmos_jax.workdir.export
     python -m kosmos_jax.predict --pretrained=FOLDER --tokenizer=sentencepiece.bpe.model --image=... [--scheme=fairseq]
 
 Prints the grasp in the photo's pixels (one JSON line with --json) and, with --out, writes the
@@ -16,10 +17,12 @@ import argparse
 import contextlib
 import json
 import math
+import pathlib
 import sys
 import warnings
 
 from kosmos_jax.predict.errors import PredictError
+from kosmos_jax.workdir.pretrained import FORMAT_FILE
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -30,17 +33,20 @@ def parse_args(argv=None) -> argparse.Namespace:
     source.add_argument("--workdir", help="a training run's folder (run.json, tokenizer.model, checkpoints/)")
     source.add_argument("--pretrained", help="an imported KOSMOS-2/KOSMOS-E folder (config.json, model.safetensors)")
     parser.add_argument("--step", type=int, default=None, help="checkpoint step of --workdir (default: the newest)")
-    parser.add_argument("--tokenizer", help="with --pretrained: its SentencePiece model file")
-    parser.add_argument("--scheme", default="fairseq", choices=("fairseq", "native"),
-                        help="with --pretrained: the tokenizer's ids (fairseq: KOSMOS-2's; native: this project's)")
+    parser.add_argument("--tokenizer", help=f"with --pretrained: its SentencePiece model file (default: the "
+                                            f"folder's tokenizer.model, when it holds {FORMAT_FILE})")
+    parser.add_argument("--scheme", default=None, choices=("fairseq", "native"),
+                        help=f"with --pretrained: the tokenizer's ids (fairseq: KOSMOS-2's; native: this project's; "
+                             f"default: {FORMAT_FILE}'s, else fairseq)")
     parser.add_argument("--image", required=True, help="the photo (PNG, JPEG, ...), any size")
     parser.add_argument("--instruction", default=None,
                         help="what to grasp, e.g. 'Grasp the red mug.' (omit it for no instruction: NON)")
     parser.add_argument("--out", default=None, help="write the overlay PNG here")
     parser.add_argument("--json", action="store_true", help="print the grasp as one JSON line")
     args = parser.parse_args(argv)
-    if args.pretrained and not args.tokenizer:
-        parser.error("--pretrained needs --tokenizer (the SentencePiece model file)")
+    if args.pretrained and not args.tokenizer and not (pathlib.Path(args.pretrained) / FORMAT_FILE).is_file():
+        parser.error(f"--pretrained={args.pretrained} holds no {FORMAT_FILE} (python -m kosmos_jax.workdir.export "
+                     "writes one): give --tokenizer, the SentencePiece model file its weights were trained with")
     return args
 
 

@@ -1,6 +1,7 @@
 """GraspPredictor: a trained run (or an imported KOSMOS-2/KOSMOS-E folder) and a photo -> a Grasp.
 
     predictor = GraspPredictor.from_workdir("runs/demo")            # newest checkpoint
+    predictor = GraspPredictor.from_pretrained("exported/demo")     # a run exported (workdir.export)
     grasp = predictor.predict("photo.png", "Grasp the red mug.")   # or an H x W x 3 uint8 array
     grasps = predictor.predict_batch(images, instructions)
     grasp = predictor.predict(image)      # no instruction: KOSMOS-E's NON kind ("" is an error)
@@ -20,7 +21,6 @@ import dataclasses
 import math
 import os
 import pathlib
-import warnings
 from collections.abc import Sequence
 
 import jax
@@ -35,14 +35,15 @@ from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
 from kosmos_jax.predict.framing import PHOTO_SHORT_SIDE, Framing, frame
 from kosmos_jax.predict.images import load_image
-from kosmos_jax.predict.sizes import CORNELL_SIZE, training_size
+from kosmos_jax.predict.sizes import CORNELL_SIZE, run_grasp_size
 from kosmos_jax.scoring.decoding import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine
 from kosmos_jax.scoring.prompts import left_padded
 from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
-from kosmos_jax.workdir.files import RunError
+from kosmos_jax.workdir.files import TOKENIZER_FILE, RunError
+from kosmos_jax.workdir.pretrained import FORMAT_FILE, read_description
 from kosmos_jax.workdir.run import open_run
 
 BATCH_SIZES = (1, 4, 16)
@@ -103,22 +104,33 @@ class GraspPredictor:
             step, params = run.params(step, mesh)
         except RunError as error:
             raise RunFolderError(str(error)) from None
-        options.setdefault("grasp_size", _run_grasp_size(run))
+        options.setdefault("grasp_size", run_grasp_size(run))
         return cls(run.model_config, params, run.tokenizer, run.format_config, protocol=run.protocol, mesh=mesh,
                    source=f"{workdir} step {step}", **options)
 
     @classmethod
-    def from_pretrained(cls, folder, tokenizer, *, scheme: str = "fairseq", numbers: str = "digits",
+    def from_pretrained(cls, folder, tokenizer=None, *, scheme: str | None = None, numbers: str | None = None,
                         format_config: FormatConfig | None = None, compute_dtype: str = "float32",
                         mesh: Mesh | None = None, **options) -> "GraspPredictor":
-        """A transformers-layout folder (config.json + safetensors, models.weights.load_pretrained) with
-        `tokenizer`: a Tokenizer, or a SentencePiece model file read with `scheme` ("fairseq" for
-        KOSMOS-2's sentencepiece.bpe.model, "native" for one this project trained). `format_config`:
-        the text format it was fine-tuned with (default: KOSMOS-E's, individual XYA with the angle code)."""
+        """A transformers-layout folder (config.json + safetensors, models.weights.load_pretrained).
+
+        A folder a run was exported to (workdir.export) holds kosmos_e.json and tokenizer.model: with
+        them it needs nothing more. Else give `tokenizer`: a Tokenizer, or a SentencePiece model file
+        read with `scheme` ("fairseq" for KOSMOS-2's sentencepiece.bpe.model, "native" for one this
+        project trained) and `numbers`; `format_config`: the text format it was fine-tuned with
+        (default: KOSMOS-E's, individual XYA with the angle code). Arguments given win over kosmos_e.json."""
         folder = pathlib.Path(folder)
         if not (folder / "config.json").is_file():
             raise RunFolderError(f"{folder}: no config.json; a pretrained folder holds config.json and "
                                  "model.safetensors in transformers' layout (models.weights.save_pretrained writes one)")
+        exported = _exported(folder)
+        if tokenizer is None and not exported:
+            raise RunFolderError(f"{folder} holds no {FORMAT_FILE} (python -m kosmos_jax.workdir.export writes one, "
+                                 "with the run's tokenizer.model): give the tokenizer its weights were trained with")
+        tokenizer = exported.get("tokenizer") if tokenizer is None else tokenizer
+        scheme, numbers = scheme or exported.get("scheme", "fairseq"), numbers or exported.get("numbers", "digits")
+        format_config = format_config or exported.get("format_config", FormatConfig())
+        options = {**{name: exported[name] for name in ("protocol", "grasp_size") if name in exported}, **options}
         if not isinstance(tokenizer, Tokenizer):
             if not pathlib.Path(tokenizer).is_file():
                 raise RunFolderError(f"{tokenizer}: the tokenizer file is missing (give the SentencePiece model the "
@@ -134,7 +146,7 @@ class GraspPredictor:
         except (FileNotFoundError, ValueError) as error:  # missing files, keys or shapes of another model
             raise RunFolderError(str(error)) from None
         params = jax.device_put(split_model(model)[1], NamedSharding(mesh, PartitionSpec()))
-        return cls(model.config, params, tokenizer, format_config or FormatConfig(), mesh=mesh, source=str(folder),
+        return cls(model.config, params, tokenizer, format_config, mesh=mesh, source=str(folder),
                    **options)
 
     # -- prediction -----------------------------------------------------------------------------
@@ -200,11 +212,16 @@ class GraspPredictor:
                      parts=dict(zip(answers, texts)) if self.format_config.individual else {})
 
 
-def _run_grasp_size(run) -> tuple[float, float]:
-    """The protocol's borrowed size over the run's training views; Cornell's when its dataset is gone."""
+def _exported(folder: pathlib.Path) -> dict:
+    """from_pretrained's defaults from FOLDER/kosmos_e.json (workdir.pretrained); {} when it has none."""
     try:
-        return training_size(run.split("train").examples, run.protocol)
-    except (RunError, ValueError) as error:
-        warnings.warn(f"grasp sizes not measured on the run's training views ({error}); using Cornell's mean "
-                      f"opening and jaw {CORNELL_SIZE}", stacklevel=3)
-        return CORNELL_SIZE
+        described = read_description(folder)
+        if described is None:
+            return {}
+        return {"tokenizer": folder / TOKENIZER_FILE, "scheme": described["tokenizer"]["scheme"],
+                "numbers": described["tokenizer"]["numbers"], "format_config": FormatConfig(**described["format"]),
+                "protocol": described["protocol"], "grasp_size": tuple(described["grasp_size"])}
+    except ValueError as error:
+        raise RunFolderError(str(error)) from None
+    except (KeyError, TypeError) as error:  # fields of another shape than export writes
+        raise RunFolderError(f"{folder / FORMAT_FILE}: unreadable ({error!r}); export the run again") from None

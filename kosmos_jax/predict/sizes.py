@@ -8,9 +8,12 @@ evenly over the split. Without the run's dataset (or for an imported folder) COR
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from kosmos_jax.scoring.grasp_size import borrowed_size
+from kosmos_jax.workdir.files import RunError
 
 SAMPLED = 512
 # Mean opening and jaw, in pixels, of Cornell's positive rectangles, measured on the 100 photos of
@@ -28,3 +31,14 @@ def training_size(examples, protocol: str, sampled: int = SAMPLED) -> tuple[floa
     if not len(sizes):
         raise ValueError("the training examples hold no finite grasp")
     return float(sizes[:, 0].mean()), float(sizes[:, 1].mean())
+
+
+def run_grasp_size(run) -> tuple[float, float]:
+    """The protocol's borrowed size over a run's (workdir.run.Run) training views; Cornell's when its
+    dataset is gone."""
+    try:
+        return training_size(run.split("train").examples, run.protocol)
+    except (RunError, ValueError) as error:
+        warnings.warn(f"grasp sizes not measured on the run's training views ({error}); using Cornell's mean "
+                      f"opening and jaw {CORNELL_SIZE}", stacklevel=3)
+        return CORNELL_SIZE

@@ -1,16 +1,25 @@
-"""A KOSMOS-E run's parameters as a KOSMOS-2 folder in transformers' layout.
+"""A KOSMOS-E run's parameters as a self-contained folder in transformers' KOSMOS-2 layout.
 
+    python -m kosmos_jax.workdir.export --workdir=runs/demo --out=exported/demo [--step=N]
+    python -m kosmos_jax.predict --pretrained=exported/demo --image=photo.png
     export_pretrained("runs/demo", "exported/demo")           # the newest checkpoint
-    GraspPredictor.from_pretrained("exported/demo", "exported/demo/tokenizer.model", scheme="native", ...)
+    GraspPredictor.from_pretrained("exported/demo")
 
 Writes config.json and model.safetensors (models.weights.save_pretrained) from the parameters of
-one checkpoint (restored alone, on one device), and the run's tokenizer.model beside them.
+one checkpoint (restored alone, on one device), the run's tokenizer.model, and kosmos_e.json (the
+run's text format, tokenizer scheme, protocol and grasp size: workdir.pretrained). A model whose
+connector adds a grid code is written with this project's extended config.json, which transformers
+refuses rather than compute another model; training starts from any such folder with
+--config.init_from=FOLDER.
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import pathlib
 import shutil
+import sys
 
 import jax
 from flax import nnx
@@ -18,16 +27,46 @@ from flax import nnx
 from kosmos_jax.models import weights
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.predict.sizes import run_grasp_size
 from kosmos_jax.scoring.decoding import fixed_streams
 from kosmos_jax.workdir.files import TOKENIZER_FILE
+from kosmos_jax.workdir.pretrained import folder_description, write_description
 from kosmos_jax.workdir.run import open_run
 
 
 def export_pretrained(workdir, folder, step: int | None = None, max_shard_bytes: int | None = None) -> int:
-    """Write checkpoint `step` (None: the newest) of the run in `workdir` to `folder`; returns the step."""
+    """Write checkpoint `step` (None: the newest) of the run in `workdir` to `folder`, which must be
+    new or empty (an older export's shards would mix with these); returns the step."""
+    folder = pathlib.Path(folder)
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise FileExistsError(f"{folder} exists and is not an empty folder; export to a new one")
     run = open_run(workdir)
     step, params = run.params(step, make_mesh(1, 1, 1, devices=jax.devices()[:1]))
     graphdef, _, rest = split_model(abstract_model(run.model_config))
-    folder = weights.save_pretrained(nnx.merge(graphdef, params, fixed_streams(rest)), folder, max_shard_bytes)
-    shutil.copyfile(run.workdir / TOKENIZER_FILE, pathlib.Path(folder) / TOKENIZER_FILE)
+    weights.save_pretrained(nnx.merge(graphdef, params, fixed_streams(rest)), folder, max_shard_bytes,
+                            extensions=True)
+    shutil.copyfile(run.workdir / TOKENIZER_FILE, folder / TOKENIZER_FILE)
+    write_description(folder, folder_description(
+        dataclasses.asdict(run.format_config), run.tokenizer.scheme, run.tokenizer.numbers, run.protocol,
+        run_grasp_size(run), step, run.workdir.resolve()))
     return step
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.workdir.export", description=__doc__.splitlines()[0])
+    parser.add_argument("--workdir", required=True, help="a KOSMOS-E training run's folder")
+    parser.add_argument("--out", required=True, help="the folder to write (new or empty)")
+    parser.add_argument("--step", type=int, default=None, help="the checkpoint to export (default: the newest)")
+    args = parser.parse_args(argv)
+    try:
+        step = export_pretrained(args.workdir, args.out, args.step)
+    except (OSError, ValueError) as error:  # workdir.files.RunError is a FileNotFoundError
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"step {step} of {args.workdir} written to {args.out}; "
+          f"predict with: python -m kosmos_jax.predict --pretrained={args.out} --image=PHOTO")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
