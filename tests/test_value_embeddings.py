@@ -91,7 +91,7 @@ def test_fresh_parameters_start_with_near_values_near_and_digit_tokenizers_are_r
     ids = [values.token_id(t) for t in ("x_60", "x_61", "x_200")]
 
     def rows(code):
-        params = trainer.initial_params(_tiny_config(code), cfg, values)
+        params = trainer.initial_params(_tiny_config(code), cfg, values, None, {})
         table = np.asarray(params["text_model"]["model"]["embed_tokens"]["embedding"].get_value())
         return table / np.linalg.norm(table, axis=1, keepdims=True)
 
@@ -104,7 +104,8 @@ def test_fresh_parameters_start_with_near_values_near_and_digit_tokenizers_are_r
 
     digits = train_tokenizer(TEXTS, numbers="digits", text_pieces=50)
     with pytest.raises(ValueError, match="numbers=values"):
-        trainer.initial_params(_tiny_config(1.0), model_configs.TINY.with_vocab_size(digits.vocab_size), digits)
+        trainer.initial_params(_tiny_config(1.0), model_configs.TINY.with_vocab_size(digits.vocab_size), digits,
+                               None, {})
 
 
 def test_the_code_is_refused_over_kosmos_2_weights():
@@ -112,4 +113,4 @@ def test_the_code_is_refused_over_kosmos_2_weights():
     config.init_from = "/nonexistent"
     values = train_tokenizer(TEXTS, numbers="values", text_pieces=50)
     with pytest.raises(ValueError, match="value_token_code"):
-        trainer.initial_params(config, model_configs.TINY.with_vocab_size(values.vocab_size), values)
+        trainer.initial_params(config, model_configs.TINY.with_vocab_size(values.vocab_size), values, None, {})

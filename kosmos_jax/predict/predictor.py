@@ -35,7 +35,7 @@ from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
 from kosmos_jax.predict.framing import PHOTO_SHORT_SIDE, Framing, frame
 from kosmos_jax.predict.images import load_image
-from kosmos_jax.predict.sizes import CORNELL_SIZE, run_grasp_size
+from kosmos_jax.workdir.sizes import CORNELL_SIZE, run_grasp_size
 from kosmos_jax.scoring.decoding import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine
 from kosmos_jax.scoring.prompts import left_padded

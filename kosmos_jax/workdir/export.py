@@ -27,7 +27,7 @@ from flax import nnx
 from kosmos_jax.models import weights
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.predict.sizes import run_grasp_size
+from kosmos_jax.workdir.sizes import run_grasp_size
 from kosmos_jax.scoring.decoding import fixed_streams
 from kosmos_jax.workdir.files import TOKENIZER_FILE
 from kosmos_jax.workdir.pretrained import folder_description, write_description
