@@ -13,7 +13,11 @@ parameters, its model and its tokenizer):
 Variants:
   demo  the model of configs/kosmos_e.py:demo on 2,000 scenes of seed 1000 (two augmented views a
         photo, about 120,000 examples of 15 kinds), validation scored during the run
+  demo_stream  the same model on scenes made on the fly (train/scene_stream.py): chunks of 64 new
+        photos of seeds 10,000, 10,001, ..., never stored, never repeated; 600 stored scenes of seed
+        1000 give the tokenizer, validation and test
   tiny  transformers' test-sized model on 16 scenes of seed 1000, seconds a step (the tests use it)
+  tiny_stream  tiny on chunks of 8 scenes made on the fly
 
 Seeds: the demo trains and tests on seed 0's scenes, scores the unseen seed 1 and validates
 recipes on seed 7 (results/angle_study); pretraining scenes use seed 1000 and up, so none of
@@ -36,7 +40,8 @@ def _sibling(name: str):
 
 kosmos_e = _sibling("kosmos_e")
 
-VARIANTS = ("demo", "tiny")
+VARIANTS = ("demo", "demo_stream", "tiny", "tiny_stream")
+STREAM_SEED = 10_000  # the first seed of scenes made on the fly (the *_stream variants): chunk k has seed 10,000 + k
 PRETRAIN_SEED = 1000  # the scenes' seed: no test or validation set of the project uses it
 
 
@@ -44,9 +49,9 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     variant = arg or "demo"
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r} of configs/pretrain.py; expected one of {VARIANTS}")
-    base = kosmos_e.get_config("demo" if variant == "demo" else "tiny")
+    base = kosmos_e.get_config("demo" if variant.startswith("demo") else "tiny")
     base.variant = f"pretrain_{variant}"
-    if variant == "demo":
+    if variant.startswith("demo"):
         # 50 folds: the test fold (40 photos) and validation (2%) stay small enough to decode at the end
         base.data = kosmos_e.data_config(top=dict(synthetic_photos=2000, synthetic_seed=PRETRAIN_SEED),
                                          augmentations=2, kinds="all", train_crop="image_centre",
@@ -58,4 +63,10 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     else:
         base.data = kosmos_e.data_config(top=dict(synthetic_photos=16, synthetic_seed=PRETRAIN_SEED),
                                          augmentations=2, kinds="all", max_length=128, text_pieces=300)
+    if variant == "demo_stream":
+        base.data.synthetic_photos = 600
+        base.data.build.update(folds=15, validation_fraction=0.07)  # 40 test photos, 39 validation
+        base.data.stream.update(photos=64, seed=STREAM_SEED)
+    elif variant == "tiny_stream":
+        base.data.stream.update(photos=8, seed=STREAM_SEED)
     return base

@@ -32,7 +32,7 @@ from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
-from kosmos_jax.train import distributed, run_start
+from kosmos_jax.train import distributed, run_start, scene_stream
 from kosmos_jax.train.baseline_task import baseline_task
 from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
@@ -118,11 +118,12 @@ def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
 
 # What a description without a field stands for: runs made before the connector options, and the
 # baselines, which have no connector, hold KOSMOS-2's
-STORED_BEFORE = {"connector": {"grid_code": 0.0}}
+STORED_BEFORE = {"connector": {"grid_code": 0.0}, "data_stream": None}
 
 
 def check_same_run(stored: dict, current: dict, workdir) -> None:
-    for field, what in (("data_identity", "dataset"), ("model", "model"), ("connector", "connector")):
+    for field, what in (("data_identity", "dataset"), ("data_stream", "scene stream"), ("model", "model"),
+                        ("connector", "connector")):
         if stored.get(field, STORED_BEFORE.get(field)) != current.get(field, STORED_BEFORE.get(field)):
             raise RunMismatchError(f"{workdir} holds a run of another {what} than this config's; "
                                    "resume it with its own config or use a new --workdir")
@@ -142,6 +143,20 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
             "examples_per_process": examples}
 
 
+def stream_settings(data_config) -> dict | None:
+    """{"photos", "seed"} of config.data.stream when training reads scenes made on the fly, else None.
+    The stream's seeds must all lie above the built dataset's scenes' seed, so that no test photo is
+    ever a training one."""
+    stream = data_config.get("stream")
+    if not stream or not stream.get("photos"):
+        return None
+    if data_config.source == "synthetic" and stream.seed <= data_config.synthetic_seed:
+        raise ValueError(f"config.data.stream.seed={stream.seed} must exceed config.data.synthetic_seed="
+                         f"{data_config.synthetic_seed}: the stream's chunks take seeds seed, seed + 1, ..., and the "
+                         "test split's scenes must not be among them")
+    return {"photos": int(stream.photos), "seed": int(stream.seed)}
+
+
 def kosmos_task(config, mesh, tx, schedule) -> Task:
     """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
     if run_start.is_run(config.init_from):
@@ -152,8 +167,17 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     check_batch_layout(config, mesh)
     description = run_description(config, dataset, model_cfg)
     splits = dataset.splits()
-    batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
-                                     jax.process_index(), jax.process_count())
+    stream = stream_settings(config.data)
+    if stream:
+        description["data_stream"] = stream
+        batches = scene_stream.SceneStream(data_lib.build_config(config.data), tokenizer, **stream,
+                                           global_batch=config.train.batch_size, process_index=jax.process_index(),
+                                           process_count=jax.process_count())
+        describe = batches.describe
+    else:
+        batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
+                                         jax.process_index(), jax.process_count())
+        describe = lambda host: data_lib.describe_examples(splits["train"], host["example_index"])
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
                                  seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0),
                                  angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()),
@@ -204,7 +228,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
         train_step=lambda state, host: train_step(state, distributed.process_batch(
             {k: host[k] for k in TRAIN_KEYS}, sharding)),
         step_record=step_record,
-        describe=lambda host: data_lib.describe_examples(splits["train"], host["example_index"]),
+        describe=describe,
         test_record=test_record,
         write_files=lambda workdir: shutil.copyfile(dataset.tokenizer_path, workdir / TOKENIZER_FILE))
 
@@ -292,4 +316,6 @@ def train(config, workdir) -> dict:
         preemption.restore()
         checkpoints.close()
         log.close()
+        if hasattr(batches, "close"):  # the scene stream's thread
+            batches.close()
     return {"finished": stopped is None, "step": step, "resumed_from": start, "stopped": stopped}
