@@ -12,6 +12,7 @@ from kosmos_jax.experiments.spec import load_config
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train import trainer
 from kosmos_jax.train.optimizer import make_optimizer
+from kosmos_jax.workdir.export import export_pretrained
 from kosmos_jax.workdir.run import open_run
 
 pytestmark = pytest.mark.xdist_group("run_start")
@@ -78,6 +79,36 @@ def test_another_tokenizer_is_refused(pretrained, tmp_path):
     config = finetune_config(pretrained, tmp_path)
     config.data.build.tokenizer = str(other)
     with pytest.raises(ValueError, match="is not the tokenizer of config.init_from"):
+        task_of(config)
+
+
+@pytest.fixture(scope="session")
+def exported(pretrained, tmp_path_factory) -> pathlib.Path:
+    folder = tmp_path_factory.mktemp("exported") / "folder"
+    export_pretrained(pretrained, folder, step=1)
+    return folder
+
+
+def test_a_finetune_starts_from_an_exported_folder_with_its_tokenizer(pretrained, exported, tmp_path):
+    task = task_of(finetune_config(exported, tmp_path))
+    state = task.init_state()
+    _, expected = open_run(pretrained).params(1)
+    got, want = jax.tree.leaves(state.params), jax.tree.leaves(expected)
+    assert len(got) == len(want) > 0
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # float32 written and read back: exact
+    assert task.description["init"] == {"from": str(exported.resolve()), "step": 1, "exported": True}
+    build = task.description["data_identity"]["build"]
+    assert build["tokenizer"]["path"] == str((exported / "tokenizer.model").resolve())
+
+
+def test_an_exported_folder_refuses_a_checkpoint_step_and_other_numbers(exported, tmp_path):
+    with pytest.raises(ValueError, match="init_step picks a checkpoint of a workdir only"):
+        task_of(finetune_config(exported, tmp_path, init_step=1)).init_state()
+    config = finetune_config(exported, tmp_path)
+    recorded = config.data.build.numbers  # the tiny variants of both configs write digits
+    config.data.build.numbers = "values" if recorded == "digits" else "digits"
+    with pytest.raises(ValueError, match=f"numbers={recorded}"):
         task_of(config)
 
 

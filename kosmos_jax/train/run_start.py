@@ -1,11 +1,12 @@
-"""Starting a KOSMOS-E run from another run's workdir (config.init_from = WORKDIR): fine-tuning from
-a pretraining run (configs/pretrain.py).
+"""Starting a KOSMOS-E run from another run (config.init_from = its WORKDIR, or the FOLDER that
+`python -m kosmos_jax.workdir.export` made of it): fine-tuning from a pretraining run (configs/pretrain.py).
 
 The new run takes the parameters of the other run's checkpoint `config.init_step` (-1: its newest;
-the optimiser state is not read), and builds its data with that run's tokenizer, so that every
-token id means what it meant in pretraining. The model must be the other run's (same shapes,
+the optimiser state is not read) or of the exported folder, and builds its data with that run's
+tokenizer (and, for a folder, the id scheme and number mode its kosmos_e.json records), so that
+every token id means what it meant in pretraining. The model must be the other run's (same shapes,
 vocabulary and connector); anything else is an error naming both. What was taken is recorded in
-run.json ("init": the workdir and the step).
+run.json ("init": the workdir or folder, and the step).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import hashlib
 import pathlib
 
 from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE, RunError
+from kosmos_jax.workdir.pretrained import FORMAT_FILE, read_description
 
 
 def is_run(init_from: str) -> bool:
@@ -21,24 +23,44 @@ def is_run(init_from: str) -> bool:
     return bool(init_from) and (pathlib.Path(init_from) / RUN_FILE).is_file()
 
 
+def is_export(init_from: str) -> bool:
+    """Whether `init_from` names a folder exported from a run (kosmos_e.json beside its weights)."""
+    return bool(init_from) and (pathlib.Path(init_from) / FORMAT_FILE).is_file()
+
+
+def is_start(init_from: str) -> bool:
+    """A run to start from, as a workdir or as its export (not KOSMOS-2's own folder)."""
+    return is_run(init_from) or is_export(init_from)
+
+
 def _digest(path: pathlib.Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def use_run_tokenizer(config) -> None:
-    """Point config.data.build at the tokenizer of the run config.init_from (in place). A build that
-    already names a tokenizer must name a file with the same content, else ValueError."""
+    """Point config.data.build at the tokenizer of the run (or export) config.init_from, in place. A
+    build that already names a tokenizer must name a file with the same content, and a folder's
+    number mode must be the build's, else ValueError."""
     tokenizer = pathlib.Path(config.init_from) / TOKENIZER_FILE
+    what = "an exported folder" if is_export(config.init_from) else "a workdir"
     if not tokenizer.is_file():
-        raise RunError(f"{tokenizer} is missing: config.init_from={config.init_from} is a workdir without its tokenizer")
+        raise RunError(f"{tokenizer} is missing: config.init_from={config.init_from} is {what} without its tokenizer")
     build = config.data.build
     given = build.get("tokenizer")
     if given and _digest(pathlib.Path(given)) != _digest(tokenizer):
         raise ValueError(f"config.data.build.tokenizer={given} is not the tokenizer of config.init_from={config.init_from} "
                          f"({tokenizer}); a run fine-tuned from another must read its token ids: leave it unset")
+    scheme = "native"
+    if is_export(config.init_from):
+        recorded = read_description(config.init_from)["tokenizer"]
+        scheme = recorded["scheme"]
+        if recorded["numbers"] != build.numbers:
+            raise ValueError(f"config.init_from={config.init_from} wrote its numbers as {recorded['numbers']!r} "
+                             f"tokens, this config as {build.numbers!r}: give --config.data.build.numbers="
+                             f"{recorded['numbers']}")
     with build.unlocked():
         build.tokenizer = str(tokenizer)
-        build.tokenizer_scheme = "native"
+        build.tokenizer_scheme = scheme
 
 
 def run_params(config, model_config, mesh):
@@ -47,12 +69,22 @@ def run_params(config, model_config, mesh):
     from kosmos_jax.workdir.run import open_run  # the run layer reads the dataset identity; imported on use
 
     run = open_run(config.init_from)
-    if run.model_config.to_hf_dict() != model_config.to_hf_dict() or \
-            run.model_config.connector_grid_code != model_config.connector_grid_code:
-        raise ValueError(f"config.init_from={config.init_from} holds another model than this config's: "
-                         f"{_difference(run.model_config, model_config)}; give this config the model of that run")
+    check_same_model(run.model_config, model_config, config.init_from)
     step = config.get("init_step", -1)
     return run.params(None if step < 0 else step, mesh)
+
+
+def check_same_model(loaded_config, model_config, init_from) -> None:
+    """ValueError naming the difference when a loaded model is not `model_config`."""
+    if loaded_config.to_hf_dict() != model_config.to_hf_dict() or \
+            loaded_config.connector_grid_code != model_config.connector_grid_code:
+        raise ValueError(f"config.init_from={init_from} holds another model than this config's: "
+                         f"{_difference(loaded_config, model_config)}; give this config the model of that run")
+
+
+def export_step(init_from) -> int:
+    """The training step an exported folder's weights were taken at (its kosmos_e.json)."""
+    return int(read_description(init_from)["step"])
 
 
 def _difference(stored, wanted) -> str:

@@ -53,8 +53,8 @@ class RunMismatchError(ValueError):
 
 
 def initial_params(config, model_cfg: Kosmos2Config, tokenizer, mesh, description: dict):
-    """Fresh parameters, a run's (config.init_from = its workdir; recorded in `description`["init"]),
-    or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
+    """Fresh parameters, a run's (config.init_from = its workdir or exported folder; recorded in
+    `description`["init"]), or KOSMOS-2's from config.init_from (their vocabulary must hold the tokenizer's)."""
     value_code = config.model.get("value_token_code", 0.0)  # .get: configs stored before the option
     if not config.init_from:
         if config.get("require_init"):
@@ -76,6 +76,14 @@ def initial_params(config, model_cfg: Kosmos2Config, tokenizer, mesh, descriptio
         return params
     model = weights.load_pretrained(config.init_from, seed=config.train.seed, compute_dtype=model_cfg.compute_dtype,
                                     remat=model_cfg.remat, scan_layers=model_cfg.scan_layers)
+    if run_start.is_export(config.init_from):
+        if config.get("init_step", -1) >= 0:
+            raise ValueError(f"config.init_from={config.init_from} is an exported folder: it holds one step's "
+                             "weights; config.init_step picks a checkpoint of a workdir only")
+        run_start.check_same_model(model.config, model_cfg, config.init_from)
+        description["init"] = {"from": str(pathlib.Path(config.init_from).resolve()),
+                               "step": run_start.export_step(config.init_from), "exported": True}
+        return nnx.state(model, nnx.Param)
     if model.config.text.vocab_size < model_cfg.text.vocab_size:
         raise ValueError(f"{config.init_from}: a vocabulary of {model.config.text.vocab_size} cannot hold the "
                          f"tokenizer's {model_cfg.text.vocab_size} ids; build the data with KOSMOS-2's tokenizer "
@@ -159,7 +167,7 @@ def stream_settings(data_config) -> dict | None:
 
 def kosmos_task(config, mesh, tx, schedule) -> Task:
     """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
-    if run_start.is_run(config.init_from):
+    if run_start.is_start(config.init_from):
         run_start.use_run_tokenizer(config)
     dataset = prepare_data(config.data)
     tokenizer = dataset.tokenizer()
