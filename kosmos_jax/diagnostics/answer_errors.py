@@ -8,6 +8,10 @@ the example was formatted from), not with the nearest ground truth as the rectan
 these figures say where the misses come from, the metric says what counts. Centre distances are in
 pixels of the view (the grasp text's image), angle errors in degrees modulo 180. An answer that does
 not parse counts as a miss at every threshold and is left out of the median.
+
+Split by scene (single photos, four-photo mosaics), and for mosaics the share of centre answers that
+fall in the target's quadrant (`same_quadrant`): whether the model picked the named photo at all
+(a quarter by chance), apart from how close it came within it.
 """
 
 from __future__ import annotations
@@ -50,9 +54,39 @@ def summarise(errors: np.ndarray, thresholds: tuple[int, ...], unit: str) -> dic
             **{f"within_{t}_{unit}": round(float((errors <= t).mean()), 4) for t in thresholds}}
 
 
+def quadrant(centre, side: float) -> int:
+    """The 2 x 2 mosaic tile (instruct.mosaic's quadrant order: row-major) a view's point lies in."""
+    return 2 * int(centre[1] >= side / 2) + int(centre[0] >= side / 2)
+
+
+def same_quadrant(rows: list[dict], config: FormatConfig) -> dict | None:
+    """Of the mosaic rows that state a centre: how many answers parse to one in the target's quadrant."""
+    hits, stated = 0, 0
+    for row in rows:
+        target = parse_target(row["target_text"], row["part"], config).grasp
+        if np.isnan(target[:2]).any():
+            continue
+        stated += 1
+        parsed = parse_target(row["answer"], row["part"], config)
+        hits += bool(parsed.ok) and quadrant(parsed.grasp, config.image_size) == quadrant(target, config.image_size)
+    return {"answers": stated, "share": round(hits / stated, 4)} if stated else None
+
+
 def error_summary(rows: list[dict], config: FormatConfig) -> dict:
-    """{"centre_px": {...}, "angle_deg": {...}, "examples": n, "distinct_answers": n}: per part, the median
-    and the share within each threshold (None for a part no row states)."""
+    """{"centre_px": {...}, "angle_deg": {...}, "examples": n, "distinct_answers": n, "by_scene": {...}}: per
+    part, the median and the share within each threshold (None for a part no row states); by_scene holds
+    the same per scene, mosaics with `same_quadrant`."""
+    summary = part_summary(rows, config)
+    scenes = sorted({row.get("scene", "single") for row in rows})
+    summary["by_scene"] = {scene: part_summary([r for r in rows if r.get("scene", "single") == scene], config)
+                           for scene in scenes}
+    if "multi" in summary["by_scene"]:
+        summary["by_scene"]["multi"]["same_quadrant"] = same_quadrant(
+            [r for r in rows if r.get("scene") == "multi"], config)
+    return summary
+
+
+def part_summary(rows: list[dict], config: FormatConfig) -> dict:
     errors = np.array([answer_errors(row, config) for row in rows], np.float64).reshape(-1, 2)
     return {"centre_px": summarise(errors[:, 0], CENTRE_PX, "px"), "angle_deg": summarise(errors[:, 1], ANGLE_DEG, "deg"),
             "examples": len(rows), "distinct_answers": len({row["answer"] for row in rows})}
@@ -99,6 +133,9 @@ def main(argv=None) -> None:
             within = ", ".join(f"{v:.0%} {k.removeprefix('within_').replace('_', ' ')}" for k, v in figures.items()
                                if k.startswith("within_"))
             print(f"  {part}: {figures['answers']} answers ({figures['unparsed']} unparsed), median {figures['median']}, within: {within}")
+    mosaics = summary["by_scene"].get("multi", {}).get("same_quadrant")
+    if mosaics:
+        print(f"  mosaics: {mosaics['share']:.0%} of {mosaics['answers']} centres in the target's quadrant (chance 25%)")
 
 
 if __name__ == "__main__":
