@@ -2,6 +2,12 @@
 chunks that never repeat a scene or an example index, processes that split each global batch, and
 stream seeds that can never reach the test split's scenes."""
 
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
 import ml_collections
 import numpy as np
 import pytest
@@ -9,10 +15,12 @@ import pytest
 from kosmos_jax.experiments.spec import load_config
 from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import trainer
-from kosmos_jax.train.metrics_log import read_metrics
+from kosmos_jax.train.metrics_log import train_losses
 from kosmos_jax.train.scene_stream import CHUNK_STRIDE, SceneStream
 
 pytestmark = pytest.mark.xdist_group("scene_stream")
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
 
 BATCH = 128  # a tiny chunk (8 photos, 2 views each, every kind) holds a few such batches: 5 cross a chunk
 
@@ -91,17 +99,31 @@ def test_stream_seeds_must_lie_above_the_test_scenes_seed():
     assert trainer.stream_settings(data) is None
 
 
-@pytest.mark.slow
-def test_a_stream_run_resumed_logs_the_losses_of_one_never_stopped(tmp_path):
-    def run(workdir, steps):
-        config = load_config("configs/pretrain.py:tiny_stream")
-        config.data.root = str(tmp_path / "data")
-        config.train.steps, config.train.checkpoint_every = steps, 2
-        config.optimizer.decay_steps, config.optimizer.warmup_steps = 4, 1  # one schedule for both lengths
-        trainer.train(config, workdir)
-        return {r["step"]: r["loss"] for r in read_metrics(workdir) if "split" not in r}
+@pytest.mark.slow  # three tiny pretraining runs in subprocesses, about two minutes on 2 cores
+def test_a_stream_run_killed_with_9_resumes_with_the_losses_of_one_never_stopped(tmp_path):
+    steps = 6
 
-    straight = run(tmp_path / "straight", 4)
-    run(tmp_path / "stopped", 2)
-    resumed = run(tmp_path / "stopped", 4)
-    assert straight == resumed and sorted(straight) == [1, 2, 3, 4]
+    def command(workdir):
+        return [sys.executable, "-m", "kosmos_jax.train", "--config=configs/pretrain.py:tiny_stream",
+                f"--workdir={workdir}", f"--config.data.root={tmp_path / 'data'}", f"--config.train.steps={steps}",
+                "--config.train.checkpoint_every=2", "--config.optimizer.warmup_steps=1"]
+
+    def finish(workdir):
+        done = subprocess.run(command(workdir), cwd=REPO, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return done
+
+    finish(tmp_path / "straight")
+    killed = subprocess.Popen(command(tmp_path / "killed"), cwd=REPO, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    checkpoints = tmp_path / "killed" / "checkpoints"
+    while not any(p.name.isdigit() for p in checkpoints.glob("*")):  # orbax renames a step's folder once written
+        assert killed.poll() is None and time.monotonic() < deadline, "the run ended or stalled before a checkpoint"
+        time.sleep(0.005)
+    killed.kill()
+    assert killed.wait(timeout=60) == -signal.SIGKILL
+    assert max(train_losses(tmp_path / "killed")) < steps  # stopped midway, not at the end
+    assert "resuming" in finish(tmp_path / "killed").stderr
+    straight, resumed = train_losses(tmp_path / "straight"), train_losses(tmp_path / "killed")
+    assert sorted(straight) == list(range(1, steps + 1)) and resumed == straight  # exact floats, every step
