@@ -14,6 +14,9 @@ from __future__ import annotations
 import hashlib
 import pathlib
 
+from flax import nnx
+
+from kosmos_jax.models import weights
 from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE, RunError
 from kosmos_jax.workdir.pretrained import FORMAT_FILE, read_description
 
@@ -82,9 +85,18 @@ def check_same_model(loaded_config, model_config, init_from) -> None:
                          f"{_difference(loaded_config, model_config)}; give this config the model of that run")
 
 
-def export_step(init_from) -> int:
-    """The training step an exported folder's weights were taken at (its kosmos_e.json)."""
-    return int(read_description(init_from)["step"])
+def start_params(config, model_config, mesh):
+    """(step, parameters) that a run starting from config.init_from (a workdir or its export) takes;
+    ValueError, before any weight is read, when the model differs or a folder is asked for a step."""
+    if is_run(config.init_from):
+        return run_params(config, model_config, mesh)
+    if config.get("init_step", -1) >= 0:
+        raise ValueError(f"config.init_from={config.init_from} is an exported folder: it holds one step's "
+                         "weights; config.init_step picks a checkpoint of a workdir only")
+    check_same_model(weights.read_config(config.init_from), model_config, config.init_from)
+    model = weights.load_pretrained(config.init_from, seed=config.train.seed, compute_dtype=model_config.compute_dtype,
+                                    remat=model_config.remat, scan_layers=model_config.scan_layers)
+    return int(read_description(config.init_from)["step"]), nnx.state(model, nnx.Param)
 
 
 def _difference(stored, wanted) -> str:

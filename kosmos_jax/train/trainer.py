@@ -70,20 +70,13 @@ def initial_params(config, model_cfg: Kosmos2Config, tokenizer, mesh, descriptio
     if value_code:
         raise ValueError("model.value_token_code sets the start of embeddings trained from scratch; "
                          "with config.init_from the embeddings are the loaded ones: leave it at 0")
-    if run_start.is_run(config.init_from):
-        step, params = run_start.run_params(config, model_cfg, mesh)
-        description["init"] = {"from": str(pathlib.Path(config.init_from).resolve()), "step": step}
+    if run_start.is_start(config.init_from):
+        step, params = run_start.start_params(config, model_cfg, mesh)
+        description["init"] = {"from": str(pathlib.Path(config.init_from).resolve()), "step": step,
+                               **({"exported": True} if run_start.is_export(config.init_from) else {})}
         return params
     model = weights.load_pretrained(config.init_from, seed=config.train.seed, compute_dtype=model_cfg.compute_dtype,
                                     remat=model_cfg.remat, scan_layers=model_cfg.scan_layers)
-    if run_start.is_export(config.init_from):
-        if config.get("init_step", -1) >= 0:
-            raise ValueError(f"config.init_from={config.init_from} is an exported folder: it holds one step's "
-                             "weights; config.init_step picks a checkpoint of a workdir only")
-        run_start.check_same_model(model.config, model_cfg, config.init_from)
-        description["init"] = {"from": str(pathlib.Path(config.init_from).resolve()),
-                               "step": run_start.export_step(config.init_from), "exported": True}
-        return nnx.state(model, nnx.Param)
     if model.config.text.vocab_size < model_cfg.text.vocab_size:
         raise ValueError(f"{config.init_from}: a vocabulary of {model.config.text.vocab_size} cannot hold the "
                          f"tokenizer's {model_cfg.text.vocab_size} ids; build the data with KOSMOS-2's tokenizer "
