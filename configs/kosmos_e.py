@@ -118,6 +118,9 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.grasp_eval_every = 0  # grasp accuracy of decoded test answers every N steps (0: only at the end)
     train.pointing_loss = 0.0  # weight of the connector's pointing loss (kosmos_jax.train.loss.pointing_sum); 0: none
     train.angle_smoothing = 0.0  # > 0: circular smooth labels on angle tokens, this many bins wide (train.loss); 0: none
+    # "cell": the pointing loss asks for the grasp's patch; "bilinear": the four patches around its centre, each
+    # in proportion to its nearness, so the pointed slots carry the centre's grid code between cells
+    train.pointing_target = "cell"
     train.pointing_queries = 0  # > 0: the pointing loss points only the first this many latent queries; 0: all
     train.patch_angle_loss = 0.0  # weight of the loss that asks the grasp's patch token for its angle bin (train.loss); 0: none
     train.tower_angle_loss = 0.0  # weight of the loss that reads the tower's grasp patch as (cos, sin) of 2*angle (train.loss); 0: none

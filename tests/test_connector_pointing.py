@@ -76,6 +76,39 @@ def test_pointing_sum_is_minus_the_log_probability_of_the_grasp_patch_weighted_b
     assert first_two != pytest.approx(expected, rel=1e-3)
 
 
+def test_bilinear_pointing_weights_average_the_patch_centres_to_the_grasp_centre():
+    side = 4
+    centres = jnp.asarray(np.random.default_rng(0).uniform(0.5 / side, 1 - 0.5 / side, (50, 2)))
+    weights = np.asarray(loss.pointing_weights(centres, side, "bilinear"))
+    assert weights.shape == (50, side * side) and (weights >= 0).all()
+    np.testing.assert_allclose(weights.sum(-1), 1.0, rtol=1e-6)
+    assert ((weights > 0).sum(-1) <= 4).all()
+    # inside the band of patch centres the weighted mean of the patch centres is the grasp centre itself
+    # (float32 positions of order 1: a few ulps)
+    np.testing.assert_allclose(weights @ np.asarray(cell_centre(jnp.arange(side * side), side)), centres, rtol=1e-5)
+    # at a patch's own centre all of it on that patch, as "cell" asks; beyond the outer centres, the border patch
+    on_centres = cell_centre(jnp.asarray([0, 5, 15]), side)
+    np.testing.assert_allclose(loss.pointing_weights(on_centres, side, "bilinear"),
+                               loss.pointing_weights(on_centres, side, "cell"), atol=1e-6)
+    corner = np.asarray(loss.pointing_weights(jnp.asarray([[0.01, 0.99]]), side, "bilinear"))[0]
+    assert corner[12] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="pointing target"):
+        loss.pointing_weights(centres, side, "nearest")
+
+
+def test_bilinear_pointing_sum_is_the_cross_entropy_against_those_weights():
+    batch, heads, queries, side = 2, 2, 3, 2
+    log_probs = jnp.log(jax.nn.softmax(jax.random.normal(jax.random.key(0), (batch, heads, queries, 1 + side * side + queries)), -1))
+    grasp = jnp.asarray([[84.0, 112.0, 5, 5, 0], [np.nan, np.nan, 5, 5, 0]])  # x a quarter of a cell right of centre 56
+    loss_mask = jnp.asarray([[0, 1, 1], [0, 1, 1]], bool)
+    # x: 56 -> 168 are the cell centres, 84 lies a quarter of the way; y 112 halfway between rows
+    weights = np.array([0.75, 0.25, 0.75, 0.25]) * 0.5
+    expected = -2 * float(np.sum(weights * np.asarray(log_probs[0, :, :, 1:1 + side * side]).mean(axis=(0, 1))))
+    assert float(loss.pointing_sum(log_probs, grasp, STORED, loss_mask, target="bilinear")) == pytest.approx(expected, rel=1e-5)
+    with pytest.raises(ValueError, match="pointing_target"):
+        step.make_train_step(TINY, None, None, None, pointing_loss=1.0, pointing_target="nearest")
+
+
 def _squares(count, seed):
     """Grey images with one white square in a random patch cell, and that square's centre as the grasp."""
     rng = np.random.default_rng(seed)

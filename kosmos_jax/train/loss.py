@@ -64,19 +64,44 @@ def finite_example_tokens(loss_mask: jax.Array, required: jax.Array) -> jax.Arra
     return jnp.where(jnp.isfinite(required).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
 
 
+POINTING_TARGETS = ("cell", "bilinear")
+
+
+def pointing_weights(centres: jax.Array, side: int, target: str = "cell") -> jax.Array:
+    """[B, side * side] where the pointing loss asks each query to look, for centres [B, 2] (x, y) in units
+    of the view's side: "cell" all on the patch that holds the centre; "bilinear" shared between the (up to)
+    four patches whose centres surround it, in proportion to how near it lies to each (a patch's weight
+    is 1 at its own centre), so that a query that looks as asked carries the grid code of the centre's
+    own position between cells, not only of its cell."""
+    if target == "cell":
+        return jax.nn.one_hot(cell_index(centres, side), side * side, dtype=jnp.float32)
+    if target != "bilinear":
+        raise ValueError(f"pointing target must be one of {POINTING_TARGETS}, got {target!r}")
+    # in units of cells, measured from the first cell's centre; clamped so the border cells take it all
+    position = jnp.clip(centres * side - 0.5, 0.0, side - 1.0)
+    low = jnp.clip(jnp.floor(position), 0, max(side - 2, 0)).astype(jnp.int32)
+    fraction = position - low
+    along = lambda axis: (jax.nn.one_hot(low[:, axis], side) * (1 - fraction[:, axis, None])
+                          + jax.nn.one_hot(low[:, axis] + 1, side) * fraction[:, axis, None])
+    return (along(1)[:, :, None] * along(0)[:, None, :]).reshape(centres.shape[0], side * side)  # row-major: y, x
+
+
 def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array,
-                 queries: int = 0) -> jax.Array:
+                 queries: int = 0, target: str = "cell") -> jax.Array:
     """The connector's pointing loss as a sum: for each example, the cross-entropy of every head of every
-    latent query against the patch that holds the target grasp's centre (log_probs [B, H, Q, 1 + patches
-    + Q], keys in the connector's order, the class token first), weighted by the example's loss tokens so
-    that, divided by the batch's token count like the text loss, it is a per-token mean. `queries` > 0
-    points only the first that many latent queries and leaves the others free to look elsewhere."""
+    latent query against where `pointing_weights` asks it to look for the target grasp's centre
+    (log_probs [B, H, Q, 1 + patches + Q], keys in the connector's order, the class token first; with
+    target "cell", minus the log-probability of the patch that holds the centre), weighted by the
+    example's loss tokens so that, divided by the batch's token count like the text loss, it is a
+    per-token mean. `queries` > 0 points only the first that many latent queries and leaves the others
+    free to look elsewhere."""
     side = grid_side(log_probs.shape[-1] - 1 - log_probs.shape[2])
     if queries:
         log_probs = log_probs[:, :, :queries]
-    target = 1 + cell_index(grasp[:, :2] / image_side, side)
-    picked = jnp.take_along_axis(log_probs, target[:, None, None, None], axis=-1)[..., 0]
-    return -jnp.sum(picked.mean(axis=(1, 2)) * finite_example_tokens(loss_mask, grasp[:, :2]))
+    weights = pointing_weights(jnp.nan_to_num(grasp[:, :2]) / image_side, side, target)
+    patch_log_probs = log_probs[..., 1:1 + side * side].mean(axis=(1, 2))
+    cross_entropy = -jnp.sum(weights * patch_log_probs, axis=-1)
+    return jnp.sum(cross_entropy * finite_example_tokens(loss_mask, grasp[:, :2]))
 
 
 def patch_angle_sum(patch_tokens: jax.Array, angle_rows: jax.Array, grasp: jax.Array, image_side: int,

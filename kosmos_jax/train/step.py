@@ -37,8 +37,8 @@ from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, split_model
 from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
-from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum, smoothed_angle_sum, token_sums,
-                                   slot_angle_sum, tower_angle_sum)
+from kosmos_jax.train.loss import (POINTING_TARGETS, circular_kernel, means, patch_angle_sum, pointing_sum,
+                                   slot_angle_sum, smoothed_angle_sum, token_sums, tower_angle_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
@@ -107,14 +107,15 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
                     mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
                     angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0,
                     pointing_queries: int = 0, tower_angle_loss: float = 0.0,
-                    slot_angle_loss: float = 0.0) -> Callable:
+                    slot_angle_loss: float = 0.0, pointing_target: str = "cell") -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
     (of this update), grad_norm (before clipping), update_norm, param_norm (after), tokens (loss
     tokens of the global batch), finite; with `pointing_loss` > 0, also pointing: the connector's
     pointing cross-entropy (`loss.pointing_sum`, of the first `pointing_queries` latent queries when
-    that is > 0), added to the loss with that weight. With
+    that is > 0, against `pointing_target`'s weights: `loss.pointing_weights`), added to the loss with
+    that weight. With
     `angle_smoothing` > 0 (a width in angle bins) the gradient is that of circular smooth labels on the
     angle tokens (`loss.smoothed_angle_sum`; angle_ids: each bin's token id), while `loss` stays the
     plain cross-entropy, comparable with runs without it. With `patch_angle_loss` > 0, also
@@ -128,6 +129,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         if weight and (angle_ids is None or len(angle_ids) == 0):
             raise ValueError(f"{name} needs the angle tokens' ids (a vocabulary with value tokens: "
                              "numbers=values and the angle code)")
+    if pointing_target not in POINTING_TARGETS:
+        raise ValueError(f"pointing_target must be one of {POINTING_TARGETS}, got {pointing_target!r}")
     kernel = jnp.asarray(circular_kernel(len(angle_ids), angle_smoothing)) if angle_smoothing else None
     angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing or patch_angle_loss else None
     weights = dict(pointing=pointing_loss, patch_angle=patch_angle_loss, tower_angle=tower_angle_loss,
@@ -148,7 +151,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         side = batch["image"].shape[1]
         if pointing_loss:
             log_probs = model.image_to_text_projection.pointing_log_probs(features)
-            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"], pointing_queries)
+            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"], pointing_queries,
+                                                 pointing_target)
         if patch_angle_loss:
             rows = jax.lax.stop_gradient(model.text_model.model.embed_tokens.embedding[...][angle_ids])
             patch_tokens = model.image_to_text_projection.dense(features)
