@@ -1,9 +1,12 @@
 """What each half of a run's answers costs it: its grasps scored again with one half from the truth.
 
-    python -m kosmos_jax.diagnostics.part_oracles --workdir=runs/demo [--step=N] [--json]
+    python -m kosmos_jax.diagnostics.part_oracles --workdir=runs/demo [--step=N] [--scored=NAME] [--json]
 
 Reads WORKDIR/eval/STEP/answers.jsonl (run `python -m kosmos_jax.evaluate --workdir=...` first) and
-the test split's instructions, and scores three grasps an instruction with the run's protocol:
+the test split's instructions, or with --scored (e.g. cornell-synthetic-60-seed7) the answers that
+`evaluate --cornell` wrote under eval/STEP/NAME and that folder's instructions, remade as evaluate
+made them (its results.json names the folder and the kinds), and scores three grasps an instruction
+with the run's protocol (the honest one for a scored folder):
   model        the answered centre and angle: the evaluate command's accuracy;
   true_angle   the answered centre with the angle of the ground truth nearest to it: what the model
                would score if its angles were right;
@@ -23,6 +26,7 @@ import numpy as np
 
 from kosmos_jax.diagnostics.answer_errors import read_answers, scored_run_arguments
 from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions
 from kosmos_jax.text.formatter import FormatConfig, parse_target
 from kosmos_jax.workdir.checkpoints import chosen_step
@@ -74,20 +78,36 @@ def part_oracles(records: Sequence[Mapping], rows: Sequence[Mapping], config: Fo
             "by_kind": {kind: {name: tally.percent(hits[name][idx]) for name in SCORES} for kind, idx in kinds.items()}}
 
 
+def scored_records(run, step: int, scored: str) -> tuple[Sequence[Mapping], str]:
+    """(records, protocol) of the answers read: the run's test split, or the folder evaluate --cornell scored."""
+    if not scored:
+        return run.split("test").examples, run.protocol
+    results_path = run.workdir / "eval" / str(step) / scored / "results.json"
+    if not results_path.is_file():
+        raise RunError(f"no {results_path}: score the folder first with python -m kosmos_jax.evaluate "
+                       f"--workdir={run.workdir} --step={step} --cornell=...")
+    results = json.loads(results_path.read_text())
+    if "cornell" not in results:
+        raise RunError(f"{results_path} is not a scored Cornell-format folder (no 'cornell' key)")
+    made = cornell_examples(results["cornell"], run.tokenizer, run.format_config, results["kinds"])
+    return made.records, "honest"
+
+
 def main(argv=None) -> None:
-    args = scored_run_arguments("kosmos_jax.diagnostics.part_oracles", __doc__, argv)
+    args = scored_run_arguments("kosmos_jax.diagnostics.part_oracles", __doc__, argv, scored=True)
     workdir = pathlib.Path(args.workdir)
     try:
         run = open_run(workdir)
         step = chosen_step(workdir, args.step)
-        figures = {"step": step, "protocol": run.protocol,
-                   **part_oracles(run.split("test").examples, read_answers(workdir, step), run.format_config, run.protocol)}
+        records, protocol = scored_records(run, step, args.scored)
+        figures = {"step": step, "protocol": protocol, "scored": args.scored or "test",
+                   **part_oracles(records, read_answers(workdir, step, args.scored), run.format_config, protocol)}
     except RunError as error:
         raise SystemExit(f"error: {error}") from None
     if args.json:
         print(json.dumps(figures))
         return
-    print(f"step {step}, {figures['instructions']} test instructions, {run.protocol} protocol: accuracy in percent")
+    print(f"step {step}, {figures['instructions']} instructions of {figures['scored']}, {protocol} protocol: accuracy in percent")
     print(f"{'kind':<16}" + "".join(f"{name:>13}" for name in SCORES))
     for kind, scores in [("all", figures["accuracy"]), *sorted(figures["by_kind"].items())]:
         print(f"{kind:<16}" + "".join(f"{scores[name]:>13.2f}" for name in SCORES))
