@@ -125,6 +125,9 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.patch_angle_loss = 0.0  # weight of the loss that asks the grasp's patch token for its angle bin (train.loss); 0: none
     train.tower_angle_loss = 0.0  # weight of the loss that reads the tower's grasp patch as (cos, sin) of 2*angle (train.loss); 0: none
     train.slot_angle_loss = 0.0  # weight of the same read of every image slot the decoder gets (train.loss); 0: none
+    # weights of the losses that ask the tower's grasp patch and every slot where in that patch the centre lies
+    train.tower_offset_loss = 0.0
+    train.slot_offset_loss = 0.0
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

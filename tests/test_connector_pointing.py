@@ -188,7 +188,7 @@ def test_the_grasp_cell_token_is_the_token_of_the_patch_under_the_centre_past_th
     assert np.array_equal(picked, np.stack([tokens[0, 1], tokens[1, 7]]))
 
 
-def test_the_train_step_logs_the_tower_and_slot_angle_losses_of_the_model_it_updates():
+def test_the_train_step_logs_the_tower_and_slot_angle_and_offset_losses_of_the_model_it_updates():
     """Step 0's logged auxiliary losses are the loss functions of the initial model's own features and
     slots (dropout off), per loss token; each is logged only when its weight is set."""
     cfg = NO_DROPOUT.replace(connector_dense_std=1.0, connector_grid_code=1.0)
@@ -209,8 +209,12 @@ def test_the_train_step_logs_the_tower_and_slot_angle_losses_of_the_model_it_upd
     features = model.vision_model(pixels(images, cfg.vision.image_size))
     expected = {"tower_angle": loss.tower_angle_sum(features, jnp.asarray(grasp), STORED, jnp.asarray(loss_mask)) / 8,
                 "slot_angle": loss.slot_angle_sum(model.image_to_text_projection(features), jnp.asarray(grasp),
-                                                  jnp.asarray(loss_mask)) / 8}
-    for weights_set in ({"tower_angle_loss": 2.0}, {"tower_angle_loss": 2.0, "slot_angle_loss": 3.0}):
+                                                  jnp.asarray(loss_mask)) / 8,
+                "tower_offset": loss.tower_offset_sum(features, jnp.asarray(grasp), STORED, jnp.asarray(loss_mask)) / 8,
+                "slot_offset": loss.slot_offset_sum(model.image_to_text_projection(features), jnp.asarray(grasp), STORED,
+                                                    GRID, jnp.asarray(loss_mask)) / 8}
+    for weights_set in ({"tower_angle_loss": 2.0}, {"tower_angle_loss": 2.0, "slot_angle_loss": 3.0},
+                        {"tower_offset_loss": 1.0, "slot_offset_loss": 2.0}):
         train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=2, seed=0, **weights_set)
         _, params, _ = kosmos2.split_model(model)
         _, metrics = train_step(state.init_train_state(params, tx, on), batch)

@@ -163,6 +163,58 @@ def slot_angle_sum(image_embeds: jax.Array, grasp: jax.Array, loss_mask: jax.Arr
     return jnp.sum(error * finite_example_tokens(loss_mask, grasp))
 
 
+OFFSET_RADIUS = 0.35  # of the unit-norm feature, the most each axis of the offset is asked to take
+
+
+def offset_directions(width: int) -> np.ndarray:
+    """[width, 2]: a fixed orthonormal pair orthogonal to `tower_angle_directions`, the read-out of the
+    offset losses (seeded and parameter-free like that pair), so the angle and the offset never share a read."""
+    if width < 4:
+        raise ValueError(f"the offset read needs a width of at least 4, got {width}")
+    both = np.concatenate([tower_angle_directions(width), np.random.default_rng(1).normal(size=(width, 2))], axis=1)
+    directions, _ = np.linalg.qr(both)
+    return directions[:, 2:].astype(np.float32)
+
+
+def cell_offset(centres: jax.Array, side: int) -> jax.Array:
+    """[B, 2] centres (x, y) in units of the view's side -> [B, 2] where each lies in the patch that holds
+    it, from -1 (its left or top edge) through 0 (its centre) to 1; the border patches' outer side clamped."""
+    position = jnp.clip(centres * side, 0.0, float(side))
+    return 2 * (position - jnp.clip(jnp.floor(position), 0, side - 1)) - 1
+
+
+def offset_error(vectors: jax.Array, centres: jax.Array, side: int) -> jax.Array:
+    """vectors [B, ..., D] (unit norm), centres [B, 2] in units of the view's side -> [B, ...]: the squared
+    distance of each vector's read along `offset_directions` from OFFSET_RADIUS * `cell_offset`."""
+    read = vectors.astype(jnp.float32) @ jnp.asarray(offset_directions(vectors.shape[-1]))
+    target = OFFSET_RADIUS * cell_offset(centres, side)
+    target = target.reshape(target.shape[:1] + (1,) * (read.ndim - 2) + target.shape[1:])
+    return jnp.sum((read - target) ** 2, axis=-1)
+
+
+def tower_offset_sum(features: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:
+    """The tower-offset loss as a sum: the vision tower's feature at the patch that holds the target grasp's
+    centre (features as `tower_angle_sum` takes them) scored by `offset_error`: it asks the tower where
+    in that patch the centre lies, which the grid code of its cell cannot say (a patch is 28 px of a
+    224 px view; a grasp's jaws are about 14 px apart). Weighted by each example's loss tokens as
+    `pointing_sum` is."""
+    centres = jnp.nan_to_num(grasp[:, :2]) / image_side
+    picked = grasp_cell_tokens(features, centres)
+    error = offset_error(picked, centres, grid_side(features.shape[1] - 1))
+    return jnp.sum(error * finite_example_tokens(loss_mask, grasp[:, :2]))
+
+
+def slot_offset_sum(image_embeds: jax.Array, grasp: jax.Array, image_side: int, side: int,
+                    loss_mask: jax.Array) -> jax.Array:
+    """The slot-offset loss as a sum: every image slot (image_embeds [B, Q, D]), scaled to unit norm and
+    scored by `offset_error` on the `side` x `side` patch grid, averaged over the slots, as
+    `slot_angle_sum` asks the slots for the angle; weighted by each example's loss tokens."""
+    slots = image_embeds.astype(jnp.float32)
+    slots = slots / jnp.maximum(jnp.linalg.norm(slots, axis=-1, keepdims=True), 1e-6)
+    error = offset_error(slots, jnp.nan_to_num(grasp[:, :2]) / image_side, side).mean(axis=1)
+    return jnp.sum(error * finite_example_tokens(loss_mask, grasp[:, :2]))
+
+
 def means(sums: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """Loss and accuracy per counted token (0 for a batch without any); so every auxiliary loss summed
     (a key NAME_sum other than loss_sum, its mean as NAME)."""

@@ -33,12 +33,14 @@ from flax import nnx
 from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.connector import grid_side
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, split_model
 from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
 from kosmos_jax.train.loss import (POINTING_TARGETS, circular_kernel, means, patch_angle_sum, pointing_sum,
-                                   slot_angle_sum, smoothed_angle_sum, token_sums, tower_angle_sum)
+                                   slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
+                                   tower_offset_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
@@ -107,7 +109,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
                     mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
                     angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0,
                     pointing_queries: int = 0, tower_angle_loss: float = 0.0,
-                    slot_angle_loss: float = 0.0, pointing_target: str = "cell") -> Callable:
+                    slot_angle_loss: float = 0.0, pointing_target: str = "cell", tower_offset_loss: float = 0.0,
+                    slot_offset_loss: float = 0.0) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
@@ -123,7 +126,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     tokens' embedding rows (held fixed for it), added to the loss with that weight. With
     `tower_angle_loss` > 0, also tower_angle: `loss.tower_angle_sum`, the tower's feature at the grasp's
     patch read as (cos, sin) of twice the angle, added with that weight. With `slot_angle_loss` > 0,
-    also slot_angle: `loss.slot_angle_sum`, the same read of every image slot the decoder gets.
+    also slot_angle: `loss.slot_angle_sum`, the same read of every image slot the decoder gets. With
+    `tower_offset_loss` / `slot_offset_loss` > 0, also tower_offset / slot_offset: `loss.tower_offset_sum`
+    and `loss.slot_offset_sum`, the same two places read for where in its patch the grasp's centre lies.
     """
     for name, weight in (("angle_smoothing", angle_smoothing), ("patch_angle_loss", patch_angle_loss)):
         if weight and (angle_ids is None or len(angle_ids) == 0):
@@ -134,7 +139,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     kernel = jnp.asarray(circular_kernel(len(angle_ids), angle_smoothing)) if angle_smoothing else None
     angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing or patch_angle_loss else None
     weights = dict(pointing=pointing_loss, patch_angle=patch_angle_loss, tower_angle=tower_angle_loss,
-                   slot_angle=slot_angle_loss)
+                   slot_angle=slot_angle_loss, tower_offset=tower_offset_loss, slot_offset=slot_offset_loss)
     auxiliary = {name: weight for name, weight in weights.items() if weight}  # the losses this step adds
     graphdef, _, rest = split_model(abstract_model(model_config))
     state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
@@ -161,6 +166,11 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             sums["tower_angle_sum"] = tower_angle_sum(features, batch["grasp"], side, batch["loss_mask"])
         if slot_angle_loss:
             sums["slot_angle_sum"] = slot_angle_sum(image_embeds, batch["grasp"], batch["loss_mask"])
+        if tower_offset_loss:
+            sums["tower_offset_sum"] = tower_offset_sum(features, batch["grasp"], side, batch["loss_mask"])
+        if slot_offset_loss:
+            sums["slot_offset_sum"] = slot_offset_sum(image_embeds, batch["grasp"], side,
+                                                      grid_side(features.shape[1] - 1), batch["loss_mask"])
         for name, weight in auxiliary.items():
             objective = objective + weight * sums[f"{name}_sum"]
         return objective, sums

@@ -187,7 +187,9 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                  pointing_queries=config.train.get("pointing_queries", 0),
                                  tower_angle_loss=config.train.get("tower_angle_loss", 0.0),
                                  slot_angle_loss=config.train.get("slot_angle_loss", 0.0),
-                                 pointing_target=config.train.get("pointing_target", "cell"))
+                                 pointing_target=config.train.get("pointing_target", "cell"),
+                                 tower_offset_loss=config.train.get("tower_offset_loss", 0.0),
+                                 slot_offset_loss=config.train.get("slot_offset_loss", 0.0))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
