@@ -302,6 +302,15 @@ def test_every_photo_of_a_cornell_folder_is_scored(workdir, tmp_path):
     assert results["target_ceiling"] == 100.0 and results["by_kind"]["non"]["target_ceiling"] == 100.0
     assert results["distinct"]["targets"]["grasps"] == results["instructions"]  # one photo, one target grasp
     assert (workdir / "eval" / "2" / "cornell-photos" / "results.json").is_file()
+    # part_oracles remakes that folder's instructions from results.json and scores the same answers alike
+    done = run_module("kosmos_jax.diagnostics.part_oracles", f"--workdir={workdir}", "--scored=cornell-photos", "--json")
+    assert done.returncode == 0, done.stderr[-3000:]
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    assert figures["scored"] == "cornell-photos" and figures["protocol"] == "honest"
+    assert figures["instructions"] == results["instructions"]
+    assert figures["accuracy"]["model"] == pytest.approx(results["accuracy"])
+    done = run_module("kosmos_jax.diagnostics.part_oracles", f"--workdir={workdir}", "--scored=cornell-elsewhere")
+    assert done.returncode != 0 and "--cornell=" in done.stderr
 
 
 def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(workdir, capsys):
