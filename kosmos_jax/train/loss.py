@@ -14,7 +14,7 @@ import numpy as np
 import optax
 
 from kosmos_jax import geometry
-from kosmos_jax.models.connector import cell_index, grasp_cell_tokens, grid_side
+from kosmos_jax.models.connector import cell_centre, cell_index, grasp_cell_tokens, grid_side
 
 
 def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> dict[str, jax.Array]:
@@ -129,14 +129,25 @@ def tower_angle_directions(width: int) -> np.ndarray:
     return directions.astype(np.float32)
 
 
-def doubled_angle_error(vectors: jax.Array, theta: jax.Array) -> jax.Array:
-    """vectors [B, ..., D] (unit norm), theta [B] -> [B, ...]: the squared distance of each vector's read
-    along `tower_angle_directions` from TOWER_ANGLE_RADIUS * (cos 2theta, sin 2theta) (2theta: a grasp
-    and its half-turn are one)."""
-    read = vectors.astype(jnp.float32) @ jnp.asarray(tower_angle_directions(vectors.shape[-1]))
-    target = TOWER_ANGLE_RADIUS * jnp.stack([jnp.cos(2 * theta), jnp.sin(2 * theta)], axis=-1)
+def read_error(vectors: jax.Array, directions: np.ndarray, target: jax.Array) -> jax.Array:
+    """vectors [B, ..., D], directions [D, 2], target [B, 2] -> [B, ...]: the squared distance of each
+    vector's read along the fixed pair from its example's target."""
+    read = vectors.astype(jnp.float32) @ jnp.asarray(directions)
     target = target.reshape(target.shape[:1] + (1,) * (read.ndim - 2) + target.shape[1:])
     return jnp.sum((read - target) ** 2, axis=-1)
+
+
+def unit_slots(image_embeds: jax.Array) -> jax.Array:
+    """[B, Q, D] the connector's slots scaled to unit norm (float32), as the slot losses read them."""
+    slots = image_embeds.astype(jnp.float32)
+    return slots / jnp.maximum(jnp.linalg.norm(slots, axis=-1, keepdims=True), 1e-6)
+
+
+def doubled_angle_error(vectors: jax.Array, theta: jax.Array) -> jax.Array:
+    """vectors [B, ..., D] (unit norm), theta [B] -> [B, ...]: `read_error` along `tower_angle_directions`
+    from TOWER_ANGLE_RADIUS * (cos 2theta, sin 2theta) (2theta: a grasp and its half-turn are one)."""
+    target = TOWER_ANGLE_RADIUS * jnp.stack([jnp.cos(2 * theta), jnp.sin(2 * theta)], axis=-1)
+    return read_error(vectors, tower_angle_directions(vectors.shape[-1]), target)
 
 
 def tower_angle_sum(features: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:
@@ -157,9 +168,7 @@ def slot_angle_sum(image_embeds: jax.Array, grasp: jax.Array, loss_mask: jax.Arr
     a fraction of a percent even when the tower holds it (results/angle_study, third round); this
     asks for the angle as a share of the slot itself. Weighted by each example's loss tokens as
     `pointing_sum` is."""
-    slots = image_embeds.astype(jnp.float32)
-    slots = slots / jnp.maximum(jnp.linalg.norm(slots, axis=-1, keepdims=True), 1e-6)
-    error = doubled_angle_error(slots, jnp.nan_to_num(grasp[:, 4])).mean(axis=1)
+    error = doubled_angle_error(unit_slots(image_embeds), jnp.nan_to_num(grasp[:, 4])).mean(axis=1)
     return jnp.sum(error * finite_example_tokens(loss_mask, grasp))
 
 
@@ -179,17 +188,14 @@ def offset_directions(width: int) -> np.ndarray:
 def cell_offset(centres: jax.Array, side: int) -> jax.Array:
     """[B, 2] centres (x, y) in units of the view's side -> [B, 2] where each lies in the patch that holds
     it, from -1 (its left or top edge) through 0 (its centre) to 1; the border patches' outer side clamped."""
-    position = jnp.clip(centres * side, 0.0, float(side))
-    return 2 * (position - jnp.clip(jnp.floor(position), 0, side - 1)) - 1
+    from_centre = centres - cell_centre(cell_index(centres, side), side)
+    return jnp.clip(2 * side * from_centre, -1.0, 1.0)
 
 
 def offset_error(vectors: jax.Array, centres: jax.Array, side: int) -> jax.Array:
     """vectors [B, ..., D] (unit norm), centres [B, 2] in units of the view's side -> [B, ...]: the squared
     distance of each vector's read along `offset_directions` from OFFSET_RADIUS * `cell_offset`."""
-    read = vectors.astype(jnp.float32) @ jnp.asarray(offset_directions(vectors.shape[-1]))
-    target = OFFSET_RADIUS * cell_offset(centres, side)
-    target = target.reshape(target.shape[:1] + (1,) * (read.ndim - 2) + target.shape[1:])
-    return jnp.sum((read - target) ** 2, axis=-1)
+    return read_error(vectors, offset_directions(vectors.shape[-1]), OFFSET_RADIUS * cell_offset(centres, side))
 
 
 def tower_offset_sum(features: jax.Array, grasp: jax.Array, image_side: int, loss_mask: jax.Array) -> jax.Array:
@@ -209,9 +215,7 @@ def slot_offset_sum(image_embeds: jax.Array, grasp: jax.Array, image_side: int, 
     """The slot-offset loss as a sum: every image slot (image_embeds [B, Q, D]), scaled to unit norm and
     scored by `offset_error` on the `side` x `side` patch grid, averaged over the slots, as
     `slot_angle_sum` asks the slots for the angle; weighted by each example's loss tokens."""
-    slots = image_embeds.astype(jnp.float32)
-    slots = slots / jnp.maximum(jnp.linalg.norm(slots, axis=-1, keepdims=True), 1e-6)
-    error = offset_error(slots, jnp.nan_to_num(grasp[:, :2]) / image_side, side).mean(axis=1)
+    error = offset_error(unit_slots(image_embeds), jnp.nan_to_num(grasp[:, :2]) / image_side, side).mean(axis=1)
     return jnp.sum(error * finite_example_tokens(loss_mask, grasp[:, :2]))
 
 
