@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.train import loss
+from kosmos_jax.train.auxiliary import AuxiliaryLosses
 
 BINS = 256
 VOCAB = 300
@@ -74,7 +75,8 @@ def test_only_counted_targets_add():
 def test_the_step_refuses_smoothing_without_angle_tokens():
     from kosmos_jax.train import step
     with pytest.raises(ValueError, match="angle tokens"):
-        step.make_train_step(None, None, None, None, angle_smoothing=8.0, angle_ids=np.zeros((0,), np.int32))
+        step.make_train_step(None, None, None, None, auxiliary=AuxiliaryLosses(angle_smoothing=8.0),
+                             angle_ids=np.zeros((0,), np.int32))
 
 
 def test_the_angle_tokens_are_found_in_bin_order():

@@ -14,6 +14,7 @@ from kosmos_jax.models import kosmos2, mesh, weights
 from kosmos_jax.models.connector import cell_centre, cell_index, grasp_cell_tokens, grid_code, grid_side
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import loss, optimizer, state, step, trainer
+from kosmos_jax.train.auxiliary import AuxiliaryLosses
 
 TINY = model_config.TINY
 NO_DROPOUT = TINY.replace(text=dataclasses.replace(TINY.text, dropout=0.0, attention_dropout=0.0))
@@ -106,7 +107,7 @@ def test_bilinear_pointing_sum_is_the_cross_entropy_against_those_weights():
     expected = -2 * float(np.sum(weights * np.asarray(log_probs[0, :, :, 1:1 + side * side]).mean(axis=(0, 1))))
     assert float(loss.pointing_sum(log_probs, grasp, STORED, loss_mask, target="bilinear")) == pytest.approx(expected, rel=1e-5)
     with pytest.raises(ValueError, match="pointing_target"):
-        step.make_train_step(TINY, None, None, None, pointing_loss=1.0, pointing_target="nearest")
+        AuxiliaryLosses(pointing_loss=1.0, pointing_target="nearest")
 
 
 def _squares(count, seed):
@@ -128,7 +129,8 @@ def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch
     opt = ml_collections.ConfigDict(dict(name="adamw", peak_lr=3e-3, end_lr=3e-3, warmup_steps=0, decay_steps=None,
                                          b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
     tx, schedule = optimizer.make_optimizer(opt, total_steps=150)
-    train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=1, seed=0, pointing_loss=1.0)
+    train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=1, seed=0,
+                                      auxiliary=AuxiliaryLosses(pointing_loss=1.0))
     graphdef, params, rest = kosmos2.split_model(kosmos2.build(cfg))
     train_state = state.init_train_state(params, tx, on)
     length, count = 3 + cfg.latent_query_num + 2, 16
@@ -215,7 +217,8 @@ def test_the_train_step_logs_the_tower_and_slot_angle_and_offset_losses_of_the_m
                                                     GRID, jnp.asarray(loss_mask)) / 8}
     for weights_set in ({"tower_angle_loss": 2.0}, {"tower_angle_loss": 2.0, "slot_angle_loss": 3.0},
                         {"tower_offset_loss": 1.0, "slot_offset_loss": 2.0}):
-        train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=2, seed=0, **weights_set)
+        train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=2, seed=0,
+                                          auxiliary=AuxiliaryLosses(**weights_set))
         _, params, _ = kosmos2.split_model(model)
         _, metrics = train_step(state.init_train_state(params, tx, on), batch)
         logged = {name for name in expected if name in metrics}

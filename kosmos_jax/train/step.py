@@ -38,7 +38,8 @@ from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, split_model
 from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
-from kosmos_jax.train.loss import (POINTING_TARGETS, circular_kernel, means, patch_angle_sum, pointing_sum,
+from kosmos_jax.train.auxiliary import AuxiliaryLosses
+from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum,
                                    slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
                                    tower_offset_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
@@ -106,41 +107,34 @@ def _all_finite(tree) -> jax.Array:
 
 
 def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformation, schedule: optax.Schedule,
-                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0, pointing_loss: float = 0.0,
-                    angle_ids=None, angle_smoothing: float = 0.0, patch_angle_loss: float = 0.0,
-                    pointing_queries: int = 0, tower_angle_loss: float = 0.0,
-                    slot_angle_loss: float = 0.0, pointing_target: str = "cell", tower_offset_loss: float = 0.0,
-                    slot_offset_loss: float = 0.0) -> Callable:
+                    mesh: Mesh, *, microbatches: int = 1, seed: int = 0,
+                    auxiliary: AuxiliaryLosses = AuxiliaryLosses(), angle_ids=None) -> Callable:
     """`train_step(state, batch) -> (state, metrics)`, jitted on `mesh`, the state donated.
 
     metrics (replicated scalars): loss, accuracy (next-token, on the loss tokens), learning_rate
     (of this update), grad_norm (before clipping), update_norm, param_norm (after), tokens (loss
-    tokens of the global batch), finite; with `pointing_loss` > 0, also pointing: the connector's
-    pointing cross-entropy (`loss.pointing_sum`, of the first `pointing_queries` latent queries when
-    that is > 0, against `pointing_target`'s weights: `loss.pointing_weights`), added to the loss with
-    that weight. With
-    `angle_smoothing` > 0 (a width in angle bins) the gradient is that of circular smooth labels on the
-    angle tokens (`loss.smoothed_angle_sum`; angle_ids: each bin's token id), while `loss` stays the
-    plain cross-entropy, comparable with runs without it. With `patch_angle_loss` > 0, also
-    patch_angle: `loss.patch_angle_sum` of the connector's projected image tokens against the angle
-    tokens' embedding rows (held fixed for it), added to the loss with that weight. With
-    `tower_angle_loss` > 0, also tower_angle: `loss.tower_angle_sum`, the tower's feature at the grasp's
-    patch read as (cos, sin) of twice the angle, added with that weight. With `slot_angle_loss` > 0,
-    also slot_angle: `loss.slot_angle_sum`, the same read of every image slot the decoder gets. With
-    `tower_offset_loss` / `slot_offset_loss` > 0, also tower_offset / slot_offset: `loss.tower_offset_sum`
-    and `loss.slot_offset_sum`, the same two places read for where in its patch the grasp's centre lies.
+    tokens of the global batch), finite; and each loss `auxiliary` adds (`AuxiliaryLosses.weights`),
+    by its name, as its mean over the batch's loss tokens:
+    - pointing: the connector's pointing cross-entropy (`loss.pointing_sum`, of the first
+      `pointing_queries` latent queries when that is > 0, against `pointing_target`'s weights);
+    - patch_angle: `loss.patch_angle_sum` of the connector's projected image tokens against the angle
+      tokens' embedding rows (held fixed for it);
+    - tower_angle: `loss.tower_angle_sum`, the tower's feature at the grasp's patch read as (cos, sin)
+      of twice the angle; slot_angle: `loss.slot_angle_sum`, the same read of every image slot;
+    - tower_offset / slot_offset: `loss.tower_offset_sum` and `loss.slot_offset_sum`, the same two
+      places read for where in its patch the grasp's centre lies.
+    Each is added to the loss with its weight. With `angle_smoothing` > 0 (a width in angle bins) the
+    gradient is that of circular smooth labels on the angle tokens (`loss.smoothed_angle_sum`;
+    angle_ids: each bin's token id), while `loss` stays the plain cross-entropy, comparable with runs
+    without it.
     """
-    for name, weight in (("angle_smoothing", angle_smoothing), ("patch_angle_loss", patch_angle_loss)):
-        if weight and (angle_ids is None or len(angle_ids) == 0):
+    angle_smoothing, weights = auxiliary.angle_smoothing, auxiliary.weights()
+    for name, needed in (("angle_smoothing", angle_smoothing), ("patch_angle_loss", "patch_angle" in weights)):
+        if needed and (angle_ids is None or len(angle_ids) == 0):
             raise ValueError(f"{name} needs the angle tokens' ids (a vocabulary with value tokens: "
                              "numbers=values and the angle code)")
-    if pointing_target not in POINTING_TARGETS:
-        raise ValueError(f"pointing_target must be one of {POINTING_TARGETS}, got {pointing_target!r}")
     kernel = jnp.asarray(circular_kernel(len(angle_ids), angle_smoothing)) if angle_smoothing else None
-    angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing or patch_angle_loss else None
-    weights = dict(pointing=pointing_loss, patch_angle=patch_angle_loss, tower_angle=tower_angle_loss,
-                   slot_angle=slot_angle_loss, tower_offset=tower_offset_loss, slot_offset=slot_offset_loss)
-    auxiliary = {name: weight for name, weight in weights.items() if weight}  # the losses this step adds
+    angle_ids = jnp.asarray(angle_ids, jnp.int32) if angle_smoothing or "patch_angle" in weights else None
     graphdef, _, rest = split_model(abstract_model(model_config))
     state_sharding = jax.tree.map(lambda x: x.sharding, abstract_train_state(model_config, tx, mesh))
 
@@ -154,24 +148,24 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         if angle_smoothing:
             objective = smoothed_angle_sum(scores, batch["tokens"], batch["loss_mask"], angle_ids, kernel)
         side = batch["image"].shape[1]
-        if pointing_loss:
+        if "pointing" in weights:
             log_probs = model.image_to_text_projection.pointing_log_probs(features)
-            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"], pointing_queries,
-                                                 pointing_target)
-        if patch_angle_loss:
+            sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"],
+                                                 auxiliary.pointing_queries, auxiliary.pointing_target)
+        if "patch_angle" in weights:
             rows = jax.lax.stop_gradient(model.text_model.model.embed_tokens.embedding[...][angle_ids])
             patch_tokens = model.image_to_text_projection.dense(features)
             sums["patch_angle_sum"] = patch_angle_sum(patch_tokens, rows, batch["grasp"], side, batch["loss_mask"])
-        if tower_angle_loss:
+        if "tower_angle" in weights:
             sums["tower_angle_sum"] = tower_angle_sum(features, batch["grasp"], side, batch["loss_mask"])
-        if slot_angle_loss:
+        if "slot_angle" in weights:
             sums["slot_angle_sum"] = slot_angle_sum(image_embeds, batch["grasp"], batch["loss_mask"])
-        if tower_offset_loss:
+        if "tower_offset" in weights:
             sums["tower_offset_sum"] = tower_offset_sum(features, batch["grasp"], side, batch["loss_mask"])
-        if slot_offset_loss:
+        if "slot_offset" in weights:
             sums["slot_offset_sum"] = slot_offset_sum(image_embeds, batch["grasp"], side,
                                                       grid_side(features.shape[1] - 1), batch["loss_mask"])
-        for name, weight in auxiliary.items():
+        for name, weight in weights.items():
             objective = objective + weight * sums[f"{name}_sum"]
         return objective, sums
 
@@ -183,7 +177,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             return jax.tree.map(jnp.add, carry, (grads, sums)), None
 
         zero_sums = {"loss_sum": jnp.zeros((), jnp.float32), "correct": jnp.zeros((), jnp.int32),
-                     "tokens": jnp.zeros((), jnp.int32), **{f"{name}_sum": jnp.zeros((), jnp.float32) for name in auxiliary}}
+                     "tokens": jnp.zeros((), jnp.int32), **{f"{name}_sum": jnp.zeros((), jnp.float32) for name in weights}}
         zero = (jax.tree.map(jnp.zeros_like, params), zero_sums)
         (grads, sums), _ = jax.lax.scan(add, zero, parts)
         return grads, sums

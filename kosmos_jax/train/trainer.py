@@ -35,6 +35,7 @@ from kosmos_jax.train import data as data_lib
 from kosmos_jax.train import distributed, run_start, scene_stream
 from kosmos_jax.train.baseline_task import baseline_task
 from kosmos_jax.train.mesh import batch_sharding
+from kosmos_jax.train.auxiliary import AuxiliaryLosses
 from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state
@@ -180,16 +181,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                          jax.process_index(), jax.process_count())
         describe = lambda host: data_lib.describe_examples(splits["train"], host["example_index"])
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
-                                 seed=config.train.seed, pointing_loss=config.train.get("pointing_loss", 0.0),
-                                 angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()),
-                                 angle_smoothing=config.train.get("angle_smoothing", 0.0),
-                                 patch_angle_loss=config.train.get("patch_angle_loss", 0.0),
-                                 pointing_queries=config.train.get("pointing_queries", 0),
-                                 tower_angle_loss=config.train.get("tower_angle_loss", 0.0),
-                                 slot_angle_loss=config.train.get("slot_angle_loss", 0.0),
-                                 pointing_target=config.train.get("pointing_target", "cell"),
-                                 tower_offset_loss=config.train.get("tower_offset_loss", 0.0),
-                                 slot_offset_loss=config.train.get("slot_offset_loss", 0.0))
+                                 seed=config.train.seed, auxiliary=AuxiliaryLosses.from_config(config.train),
+                                 angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
