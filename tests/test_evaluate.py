@@ -400,3 +400,26 @@ def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_
         ap.main([f"--workdir={workdir}", "--examples=1"])
     assert ap.main([f"--workdir={workdir}", "--examples=8", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["step"] == 2
+
+
+def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workdir, tmp_path, capsys):
+    from kosmos_jax.evaluate.run_scores import evaluate
+
+    configured, rows, _ = evaluate(values_workdir, max_examples=8)
+    greedy, greedy_rows, _ = evaluate(values_workdir, max_examples=8, value_window=0)
+    assert open_run(values_workdir).config.decode.value_window == configured["value_window"] == 32
+    assert greedy["value_window"] == 0
+    for results in (configured, greedy):
+        assert results["constrained"]["parse_failures"] == 0 and results["target_ceiling"] == 100.0
+    # only the coordinate values may differ: the angle answers are the mode's either way
+    angles = [(a["answer"], b["answer"]) for a, b in zip(rows, greedy_rows) if a["part"] == "angle"]
+    assert angles and all(a == b for a, b in angles)
+    old = tmp_path / "made_before_decode"
+    shutil.copytree(values_workdir, old, ignore=shutil.ignore_patterns("eval"))
+    description = json.loads((old / "run.json").read_text())
+    del description["config"]["decode"]
+    (old / "run.json").write_text(json.dumps(description))
+    assert evaluate(old, max_examples=8)[0]["value_window"] == 0  # runs made before the setting: greedy, as scored then
+    with pytest.raises(SystemExit):
+        main(["--workdir", str(values_workdir), "--value-window=-1"])
+    assert "--value-window must be at least 0" in capsys.readouterr().err

@@ -58,12 +58,17 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="instruction kinds for --cornell, comma-separated, as the build names them (default: non)")
     parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--max-examples", type=int, default=0, help="decode at most this many examples (0: all)")
+    parser.add_argument("--value-window", type=int, default=None, metavar="N",
+                        help="read coordinate value tokens as the local mean within N values of the mode "
+                             "(0: greedy; default: the run's config.decode.value_window, 0 for runs made before it)")
     parser.add_argument("--json", action="store_true", help="print results.json as one line on stdout")
     parser.add_argument("--overlays", type=int, default=0, metavar="N",
                         help="draw N scored views of each instruction kind to eval/STEP/overlays/KIND.png (overlays.py)")
     args = parser.parse_args(argv)
     if args.batch_size < 1 or args.max_examples < 0:
         parser.error("--batch-size must be positive and --max-examples at least 0")
+    if args.value_window is not None and args.value_window < 0:
+        parser.error("--value-window must be at least 0")
     return args
 
 
@@ -73,7 +78,7 @@ def main(argv=None) -> int:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
             results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split, cornell=args.cornell,
                                              kinds=args.kinds, batch_size=args.batch_size,
-                                             max_examples=args.max_examples)
+                                             max_examples=args.max_examples, value_window=args.value_window)
             write(results, rows, folder)
             write_overlays(args.workdir, results, rows, folder, args.overlays)
     except (RunError, FileNotFoundError, ValueError) as error:

@@ -23,6 +23,7 @@ from flax import nnx
 
 from kosmos_jax.models.decoder import init_cache, position_ids
 from kosmos_jax.models.kosmos2 import Kosmos2
+from kosmos_jax.models.value_decoding import greedy
 
 
 class NoConstraint:
@@ -44,9 +45,9 @@ class NoConstraint:
         return jnp.zeros(state.shape, bool)
 
 
-def _pick(logits, constraint, cstate, done, remaining, eos_id, pad_id):
+def _pick(logits, constraint, cstate, done, remaining, eos_id, pad_id, picker):
     allowed = constraint.allowed(cstate, logits.shape[-1], remaining)
-    token = jnp.argmax(jnp.where(allowed, logits, -jnp.inf), axis=-1).astype(jnp.int32)
+    token = picker.pick(logits, allowed) if picker is not None else greedy(logits, allowed)
     token = jnp.where(done, pad_id, token)
     cstate = constraint.advance(cstate, token)
     done = done | (token == eos_id) | constraint.finished(cstate)
@@ -75,10 +76,11 @@ def step(model: Kosmos2, tokens, valid, cache, n_real):
     return model.text_model.logits(hidden)[:, 0], cache, n_real + valid.astype(jnp.int32)
 
 
-@functools.partial(nnx.jit, static_argnames=("max_new_tokens", "constraint", "use_cache", "return_logits"))
+@functools.partial(nnx.jit, static_argnames=("max_new_tokens", "constraint", "use_cache", "return_logits", "picker"))
 def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds, *, max_new_tokens: int,
-             constraint=None, use_cache: bool = True, return_logits: bool = False):
-    """Greedy tokens [B, max_new_tokens] (pad id after a row's EOS), and per-step logits if asked."""
+             constraint=None, use_cache: bool = True, return_logits: bool = False, picker=None):
+    """Greedy tokens [B, max_new_tokens] (pad id after a row's EOS), and per-step logits if asked.
+    A `picker` (`value_decoding.LocalMean`) chooses each token among the allowed ones instead of the mode."""
     constraint = constraint or NoConstraint()
     if max_new_tokens < 1:
         raise ValueError(f"max_new_tokens must be positive, got {max_new_tokens}")
@@ -96,13 +98,13 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
         logits, cache, n_real = prefill(model, input_ids, attention_mask, image_mask, image_embeds,
                                         prompt_len + max_new_tokens)
         token, cstate, done = _pick(logits, constraint, cstate, done, max_new_tokens, cfg.eos_token_id,
-                                    cfg.pad_token_id)
+                                    cfg.pad_token_id, picker)
 
         def body(carry, i):
             token, valid, cache, n_real, cstate, done = carry  # valid: `token` came before the row's EOS
             logits, cache, n_real = step(nnx.merge(graphdef, state, copy=True), token, valid, cache, n_real)
             new, cstate, new_done = _pick(logits, constraint, cstate, done, max_new_tokens - i, cfg.eos_token_id,
-                                          cfg.pad_token_id)
+                                          cfg.pad_token_id, picker)
             return (new, ~done, cache, n_real, cstate, new_done), (new, logits)
 
         carry = (token, jnp.ones((batch,), bool), cache, n_real, cstate, done)
@@ -119,7 +121,7 @@ def generate(model: Kosmos2, input_ids, attention_mask, image_mask, image_embeds
             logits = nnx.merge(graphdef, state, copy=True)(ids, mask, image_mask, image_embeds=image_embeds)
             logits = jax.lax.dynamic_index_in_dim(logits, prompt_len + i - 1, axis=1, keepdims=False)
             token, cstate, done_new = _pick(logits, constraint, cstate, done, max_new_tokens - i, cfg.eos_token_id,
-                                            cfg.pad_token_id)
+                                            cfg.pad_token_id, picker)
             ids = jax.lax.dynamic_update_slice(ids, token[:, None].astype(ids.dtype), (0, prompt_len + i))
             mask = jax.lax.dynamic_update_slice(mask, ~done[:, None], (0, prompt_len + i))
             return (ids, mask, cstate, done_new), (token, logits)

@@ -30,6 +30,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.models.value_decoding import LocalMean, configured_value_window
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
@@ -78,7 +79,8 @@ class GraspPredictor:
 
     def __init__(self, model_config: Kosmos2Config, params, tokenizer: Tokenizer, format_config: FormatConfig, *,
                  protocol: str = "honest", grasp_size: tuple[float, float] = CORNELL_SIZE, mesh: Mesh | None = None,
-                 batch_sizes: Sequence[int] = BATCH_SIZES, short_side: int = PHOTO_SHORT_SIDE, source: str = ""):
+                 batch_sizes: Sequence[int] = BATCH_SIZES, short_side: int = PHOTO_SHORT_SIDE, source: str = "",
+                 value_window: int = 0):
         if tokenizer.vocab_size > model_config.text.vocab_size:
             raise RunFolderError(f"{source or 'the model'}: its vocabulary of {model_config.text.vocab_size} ids cannot "
                                  f"hold the tokenizer's {tokenizer.vocab_size}; is it the model's tokenizer?")
@@ -89,7 +91,9 @@ class GraspPredictor:
         self.batch_sizes, self.short_side, self.source = tuple(sorted(set(batch_sizes))), short_side, source
         self.context = model_config.text.max_position_embeddings
         self._questions = questions(tokenizer, format_config, model_config.text.vocab_size)
-        self._decoder = Decoder(model_config, mesh if mesh is not None else make_mesh(1, -1, 1))
+        self.value_window = value_window  # > 0: value tokens read as their local mean (models.value_decoding)
+        picker = LocalMean(tokenizer.piece_texts(), value_window) if value_window else None
+        self._decoder = Decoder(model_config, mesh if mesh is not None else make_mesh(1, -1, 1), picker)
 
     # -- loading --------------------------------------------------------------------------------
     @classmethod
@@ -105,6 +109,7 @@ class GraspPredictor:
         except RunError as error:
             raise RunFolderError(str(error)) from None
         options.setdefault("grasp_size", run_grasp_size(run))
+        options.setdefault("value_window", configured_value_window(run.config))
         return cls(run.model_config, params, run.tokenizer, run.format_config, protocol=run.protocol, mesh=mesh,
                    source=f"{workdir} step {step}", **options)
 
@@ -130,7 +135,8 @@ class GraspPredictor:
         tokenizer = exported.get("tokenizer") if tokenizer is None else tokenizer
         scheme, numbers = scheme or exported.get("scheme", "fairseq"), numbers or exported.get("numbers", "digits")
         format_config = format_config or exported.get("format_config", FormatConfig())
-        options = {**{name: exported[name] for name in ("protocol", "grasp_size") if name in exported}, **options}
+        options = {**{name: exported[name] for name in ("protocol", "grasp_size", "value_window") if name in exported},
+                   **options}
         if not isinstance(tokenizer, Tokenizer):
             if not pathlib.Path(tokenizer).is_file():
                 raise RunFolderError(f"{tokenizer}: the tokenizer file is missing (give the SentencePiece model the "
@@ -220,7 +226,8 @@ def _exported(folder: pathlib.Path) -> dict:
             return {}
         return {"tokenizer": folder / TOKENIZER_FILE, "scheme": described["tokenizer"]["scheme"],
                 "numbers": described["tokenizer"]["numbers"], "format_config": FormatConfig(**described["format"]),
-                "protocol": described["protocol"], "grasp_size": tuple(described["grasp_size"])}
+                "protocol": described["protocol"], "grasp_size": tuple(described["grasp_size"]),
+                "value_window": int(described.get("value_window", 0))}
     except ValueError as error:
         raise RunFolderError(str(error)) from None
     except (KeyError, TypeError) as error:  # fields of another shape than export writes

@@ -1,4 +1,4 @@
-"""Greedy answers of a model given as parameters on a mesh: one jitted program per prompt shape and
+"""Answers (greedy unless a picker is given) of a model given as parameters on a mesh: one jitted program per prompt shape and
 constraint, images to tokens (pixels, image embeddings, KV-cache decoding).
 
 The parameters stay where they are (a trainer's fsdp shards, a restored checkpoint's); prompts and
@@ -36,20 +36,22 @@ def fixed_streams(rest: nnx.State) -> nnx.State:
     return jax.tree.map(concrete, rest, is_leaf=lambda x: isinstance(x, nnx.Variable))
 
 
-def _answers(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens):
+def _answers(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens, picker):
     model = nnx.view(nnx.merge(graphdef, params, fixed_streams(rest)), deterministic=True)
     embeds = model.image_embeds(pixels(images, model.config.vision.image_size))
-    return decode.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint)
+    return decode.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint,
+                           picker=picker)
 
 
 class Decoder:
     """`decoder(params, images, ids, mask, image_mask, constraint, max_new_tokens)` -> generated ids
-    [B, max_new_tokens] as numpy (pad id after each row's EOS); `constraint` None decodes freely."""
+    [B, max_new_tokens] as numpy (pad id after each row's EOS); `constraint` None decodes freely. A
+    `picker` (`models.value_decoding.LocalMean`) chooses each token instead of the greedy mode."""
 
-    def __init__(self, model_config: Kosmos2Config, mesh: Mesh):
+    def __init__(self, model_config: Kosmos2Config, mesh: Mesh, picker=None):
         graphdef, _, rest = nnx.split(abstract_model(model_config), nnx.Param, ...)
         self.replicated = NamedSharding(mesh, PartitionSpec())
-        self._jitted = jax.jit(functools.partial(_answers, graphdef, rest),
+        self._jitted = jax.jit(functools.partial(_answers, graphdef, rest, picker=picker),
                                static_argnames=("constraint", "max_new_tokens"), out_shardings=self.replicated)
 
     def _global(self, array: np.ndarray) -> jax.Array:

@@ -24,6 +24,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.value_decoding import LocalMean
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.decoding import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
@@ -48,8 +49,11 @@ def first_instructions(instructions: Sequence[Instruction], max_examples: int) -
 
 class GraspEvaluation:
     def __init__(self, model_config: Kosmos2Config, mesh: Mesh, split, tokenizer: Tokenizer, config: FormatConfig,
-                 protocol: str, *, batch_size: int = 16, max_examples: int = 0, backend: str = "exact"):
-        """`split`: a StoredSplit, or any sequence of records whose items hold their "image"."""
+                 protocol: str, *, batch_size: int = 16, max_examples: int = 0, backend: str = "exact",
+                 value_window: int = 0):
+        """`split`: a StoredSplit, or any sequence of records whose items hold their "image".
+        `value_window` > 0 reads coordinate value tokens as the local mean within that many values of
+        the mode (`models.value_decoding`); 0 decodes greedily."""
         records = getattr(split, "examples", split)
         self.split, self.config, self.protocol, self.backend = split, config, protocol, backend
         every = group_instructions(records)
@@ -75,14 +79,15 @@ class GraspEvaluation:
                 filled = rows + [rows[0]] * (batch_size - len(rows))
                 padded = left_padded([prompts[i] for i in filled], length, tokenizer.pad_id)
                 self.batches.append((question, rows, padded))
-        self.decoder = Decoder(model_config, mesh)
+        self.value_window = value_window
+        self.decoder = Decoder(model_config, mesh, LocalMean(tokenizer.piece_texts(), value_window) if value_window else None)
 
     @property
     def examples(self) -> int:
         return len(self.question_of)
 
     def answers(self, params, constrained: bool = True) -> dict[int, tuple[str, object]]:
-        """{example index: (answer text, its parse)} of every example, greedy."""
+        """{example index: (answer text, its parse)} of every example (greedy, or value tokens by their local mean)."""
         out = {}
         for question, rows, (ids, mask, image_mask) in self.batches:
             images = np.stack([self.split[i]["image"] for i in rows + [rows[0]] * (len(ids) - len(rows))])
