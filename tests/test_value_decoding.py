@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from kosmos_jax.models.value_decoding import LocalMean, greedy
+from kosmos_jax.models.value_decoding import LocalMean, greedy, value_picker
 
 PIECES = ["<s>", "</s>", "Grasp", *[f"x_{v}" for v in range(20)], *[f"y_{v}" for v in range(20)], "a_0", "a_1", "a_2"]
 ID = {piece: i for i, piece in enumerate(PIECES)}
@@ -36,10 +36,9 @@ def test_the_local_mean_of_the_modes_family_within_the_window_is_answered():
 def test_window_zero_angles_and_words_are_greedy():
     rows = [_logits({"x_4": 0.4, "x_9": 0.35, "x_10": 0.25}), _logits({"a_0": 0.5, "a_2": 0.5 - 1e-3}),
             _logits({"Grasp": 0.6, "x_3": 0.4})]
-    assert _pick(0, rows) == ["x_4", "a_0", "Grasp"]
-    assert _pick(8, rows)[1:] == ["a_0", "Grasp"]
-    expected = [np.asarray(greedy(jnp.asarray(np.stack(rows)), jnp.ones((3, len(PIECES)), bool))).tolist()]
-    assert [ID[p] for p in _pick(0, rows)] == expected[0]
+    modes = np.asarray(greedy(jnp.asarray(np.stack(rows)), jnp.ones((3, len(PIECES)), bool)))
+    assert [PIECES[i] for i in modes] == _pick(0, rows) == ["x_4", "a_0", "Grasp"]
+    assert _pick(8, rows) == ["x_7", "a_0", "Grasp"]  # 4 * 0.4 + 9 * 0.35 + 10 * 0.25 = 7.25
 
 
 def test_only_allowed_tokens_count_and_a_disallowed_mean_keeps_the_mode():
@@ -64,3 +63,7 @@ def test_a_vocabulary_without_value_tokens_and_a_padded_vocabulary():
 def test_a_negative_window_is_refused():
     with pytest.raises(ValueError, match="value window"):
         LocalMean(PIECES, -1)
+
+
+def test_a_window_of_zero_gives_no_picker():
+    assert value_picker(PIECES, 0) is None and isinstance(value_picker(PIECES, 4), LocalMean)

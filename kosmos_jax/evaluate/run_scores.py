@@ -20,8 +20,8 @@ from collections.abc import Sequence
 
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.models.value_decoding import configured_value_window
+from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.scoring.tally import markdown
 from kosmos_jax.workdir.files import read_description, run_task
@@ -39,8 +39,6 @@ def evaluate(workdir: str | os.PathLike, *, step: int | None = None, split: str 
     are read (`models.value_decoding`; 0: greedy; None: as the run's config says)."""
     if batch_size < 1 or max_examples < 0:
         raise ValueError("batch_size must be positive and max_examples at least 0")
-    if value_window is not None and value_window < 0:
-        raise ValueError(f"value_window must be >= 0, got {value_window}")
     settings = dict(step=step, split=split, cornell=cornell, kinds=tuple(kinds), batch_size=batch_size,
                     max_examples=max_examples)
     if run_task(read_description(workdir)) == "baseline":

@@ -15,12 +15,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kosmos_jax.models.value_embeddings import VALUE_TOKEN
+from kosmos_jax.models.value_embeddings import value_tokens
 
 
 def configured_value_window(config) -> int:
     """The value window a run's config sets (`decode.value_window`); 0 (greedy) for configs made before it."""
     return int(config.get("decode", {}).get("value_window", 0))
+
+
+def value_picker(token_texts, window: int) -> LocalMean | None:
+    """The picker a decoder takes for `window` (models.decode.generate): None (greedy) for 0."""
+    return LocalMean(token_texts, window) if window else None
 
 
 def greedy(logits: jax.Array, allowed: jax.Array) -> jax.Array:
@@ -36,17 +41,15 @@ class LocalMean:
         if window < 0:
             raise ValueError(f"the value window must be >= 0 values, got {window}")
         self.window, self.vocab_size = int(window), len(token_texts)
-        rows = [(i, match.group(1), int(match.group(2))) for i, text in enumerate(token_texts)
-                if (match := VALUE_TOKEN.match(text)) and match.group(1) != "a"]
-        families = sorted({family for _, family, _ in rows})
+        coordinates = {family: rows for family, rows in value_tokens(token_texts).items() if family != "a"}
         self.value = np.zeros(self.vocab_size, np.float32)
         self.family = np.full(self.vocab_size, -1, np.int32)
-        values = [v for _, _, v in rows]
-        self.offset = min(values, default=0)
-        self.token_of = np.full((max(len(families), 1), max(values, default=0) - self.offset + 1), -1, np.int32)
-        for token_id, family, value in rows:
-            self.value[token_id], self.family[token_id] = value, families.index(family)
-            self.token_of[families.index(family), value - self.offset] = token_id
+        every_value = np.concatenate([values for _, values in coordinates.values()] or [np.zeros(1, int)])
+        self.offset = int(every_value.min())
+        self.token_of = np.full((max(len(coordinates), 1), int(every_value.max()) - self.offset + 1), -1, np.int32)
+        for index, (ids, values) in enumerate(coordinates.values()):
+            self.value[ids], self.family[ids] = values, index
+            self.token_of[index, values - self.offset] = ids
 
     def pick(self, logits: jax.Array, allowed: jax.Array) -> jax.Array:
         token = greedy(logits, allowed)

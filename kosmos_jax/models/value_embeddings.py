@@ -45,15 +45,20 @@ def value_phases(family: str, values: np.ndarray) -> np.ndarray:
     return np.pi * (values - values.min()) / (values.max() - values.min() + 1)
 
 
-def value_rows(pieces: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """{family: (ids, phases)} of the value tokens among `pieces` (the tokenizer's text of each id)."""
+def value_tokens(pieces: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{family: (ids, values)} of the value tokens among `pieces` (the tokenizer's text of each id)."""
     found: dict[str, list[tuple[int, int]]] = {}
     for token_id, piece in enumerate(pieces):
         match = VALUE_TOKEN.match(piece)
         if match:
             found.setdefault(match.group(1), []).append((token_id, int(match.group(2))))
-    return {family: (np.array([i for i, _ in rows]), value_phases(family, np.array([v for _, v in rows], np.float64)))
-            for family, rows in found.items()}
+    return {family: (np.array([i for i, _ in rows]), np.array([v for _, v in rows])) for family, rows in found.items()}
+
+
+def value_rows(pieces: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{family: (ids, phases)} of the value tokens among `pieces`."""
+    return {family: (ids, value_phases(family, values.astype(np.float64)))
+            for family, (ids, values) in value_tokens(pieces).items()}
 
 
 def angle_token_ids(pieces: list[str]) -> np.ndarray:

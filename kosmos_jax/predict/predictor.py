@@ -30,7 +30,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import LocalMean, configured_value_window
+from kosmos_jax.models.value_decoding import configured_value_window, value_picker
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
@@ -91,9 +91,8 @@ class GraspPredictor:
         self.batch_sizes, self.short_side, self.source = tuple(sorted(set(batch_sizes))), short_side, source
         self.context = model_config.text.max_position_embeddings
         self._questions = questions(tokenizer, format_config, model_config.text.vocab_size)
-        self.value_window = value_window  # > 0: value tokens read as their local mean (models.value_decoding)
-        picker = LocalMean(tokenizer.piece_texts(), value_window) if value_window else None
-        self._decoder = Decoder(model_config, mesh if mesh is not None else make_mesh(1, -1, 1), picker)
+        self._decoder = Decoder(model_config, mesh if mesh is not None else make_mesh(1, -1, 1),
+                                value_picker(tokenizer.piece_texts(), value_window))
 
     # -- loading --------------------------------------------------------------------------------
     @classmethod

@@ -1,5 +1,5 @@
-"""Answers (greedy unless a picker is given) of a model given as parameters on a mesh: one jitted program per prompt shape and
-constraint, images to tokens (pixels, image embeddings, KV-cache decoding).
+"""Answers of a model given as parameters on a mesh (greedy, or chosen by a picker): one jitted
+program per prompt shape and constraint, images to tokens (pixels, image embeddings, KV-cache decoding).
 
 The parameters stay where they are (a trainer's fsdp shards, a restored checkpoint's); prompts and
 images go in replicated, and the answers come back replicated, so every process of a multi-process

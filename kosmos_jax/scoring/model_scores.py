@@ -24,7 +24,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.value_decoding import LocalMean
+from kosmos_jax.models.value_decoding import value_picker
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.decoding import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
@@ -79,8 +79,7 @@ class GraspEvaluation:
                 filled = rows + [rows[0]] * (batch_size - len(rows))
                 padded = left_padded([prompts[i] for i in filled], length, tokenizer.pad_id)
                 self.batches.append((question, rows, padded))
-        self.value_window = value_window
-        self.decoder = Decoder(model_config, mesh, LocalMean(tokenizer.piece_texts(), value_window) if value_window else None)
+        self.decoder = Decoder(model_config, mesh, value_picker(tokenizer.piece_texts(), value_window))
 
     @property
     def examples(self) -> int:

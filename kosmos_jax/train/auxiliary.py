@@ -43,8 +43,3 @@ class AuxiliaryLosses:
         """{name: weight} of the losses this step adds to its objective (and logs), named as they are logged."""
         return {f.name.removesuffix("_loss"): getattr(self, f.name) for f in dataclasses.fields(self)
                 if f.name.endswith("_loss") and getattr(self, f.name)}
-
-    @staticmethod
-    def names() -> tuple[str, ...]:
-        """Every loss the step can add, named as logged."""
-        return tuple(f.name.removesuffix("_loss") for f in dataclasses.fields(AuxiliaryLosses) if f.name.endswith("_loss"))
