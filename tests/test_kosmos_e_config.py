@@ -1,0 +1,35 @@
+"""configs/kosmos_e.py: every variant loads, and demo_gpu is demo with more photos and steps only."""
+
+import importlib.util
+import pathlib
+
+import pytest
+
+CONFIG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "kosmos_e.py"
+
+
+@pytest.fixture(scope="module")
+def kosmos_e():
+    spec = importlib.util.spec_from_file_location("_config_kosmos_e", CONFIG)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_variant_loads_under_its_own_name_and_an_unknown_one_is_refused(kosmos_e):
+    for variant in kosmos_e.VARIANTS:
+        assert kosmos_e.get_config(variant).variant == variant
+    with pytest.raises(ValueError, match="unknown variant 'demo_tpu'"):
+        kosmos_e.get_config("demo_tpu")
+
+
+def test_demo_gpu_is_the_demo_on_more_photos_for_more_steps(kosmos_e):
+    demo, gpu = kosmos_e.get_config("demo").to_dict(), kosmos_e.get_config("demo_gpu").to_dict()
+    assert (gpu["data"]["synthetic_photos"], gpu["train"]["steps"]) == (1200, 2400)
+    assert gpu["train"]["steps"] % gpu["train"]["checkpoint_every"] == 0
+    for changed in (("data", "synthetic_photos"), ("train", "steps"), ("train", "eval_every"),
+                    ("train", "checkpoint_every"), ("variant",)):
+        for config in (demo, gpu):
+            *parents, leaf = changed
+            (config[parents[0]] if parents else config).pop(leaf)
+    assert gpu == demo  # everything else is the demo's own: its build, model, optimiser, losses, decoding
