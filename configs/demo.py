@@ -14,6 +14,9 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
     config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo"  # "": no training
     config.steps = 0  # 0: the training config's own train.steps
+    # a run's workdir or an exported folder to start from (relative to the repository root), given to the
+    # training config as its config.init_from; "": the training config's own start
+    config.init_from = ""
     config.photos = 24 if tiny else 60  # synthetic photos of the no-learning table (object-wise needs >= 5 objects)
     config.seed = 0
     # the trained model on scenes it never saw (another seed): NON on each, multi-object kinds on mosaics

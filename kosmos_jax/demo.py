@@ -5,6 +5,7 @@
 1. Trains `config.train_config` (configs/kosmos_e.py:demo: a small model from scratch on the
    project's synthetic scenes) in OUT/run, an ordinary workdir (`python -m kosmos_jax.evaluate
    --workdir=OUT/run` and the notebooks open it); a finished run is reused, a stopped one resumed.
+   With config.init_from (a run's workdir or an exported folder) it fine-tunes from that start.
    It decodes the held-out fold's answers and scores them (evaluate's code), and scores the
    image-centre and ground-truth-mean predictors on exactly the same test instructions. Then the
    same on config.fresh_photos scenes drawn with another seed (config.fresh_seed), which it never
@@ -84,6 +85,11 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     train_config = spec.load_config(config.train_config)
     if config.steps:
         train_config.train.steps = config.steps
+    if config.init_from:
+        start = REPO / config.init_from  # an absolute path stays itself
+        if not start.is_dir():
+            raise FileNotFoundError(f"config.init_from={config.init_from}: folder {start} does not exist")
+        train_config.init_from = str(start)
     train_config.data.root = str(out / "datasets")
     workdir = out / "run"
     started = time.perf_counter()

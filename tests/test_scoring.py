@@ -218,6 +218,18 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     assert "scene multi" in out and "never trained on" in out
     demo.run(demo_config(tmp_path, steps=6))  # a finished run is reused, not trained again
     assert json.loads((tmp_path / "results.json").read_text())[: len(trained)] == trained
+    # another demo that starts from this one's run: its config names the start, its tokenizer is the start's
+    second = tmp_path / "second"
+    demo.run(demo_config(second, steps=6, fresh_photos=0, init_from=str(tmp_path / "run")))
+    started = json.loads((second / "run" / "run.json").read_text())["config"]
+    assert started["init_from"] == str(tmp_path / "run")
+    assert (second / "run" / "tokenizer.model").read_bytes() == (tmp_path / "run" / "tokenizer.model").read_bytes()
+
+
+def test_demo_refuses_a_missing_start_before_training(tmp_path):
+    with pytest.raises(FileNotFoundError, match="config.init_from=.*nowhere.* does not exist"):
+        demo.trained_rows(demo_config(tmp_path, init_from=str(tmp_path / "nowhere")), tmp_path)
+    assert not list(tmp_path.iterdir())
 
 
 def test_demo_refuses_fresh_photos_of_the_training_seed(tmp_path):
