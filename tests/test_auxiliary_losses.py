@@ -1,12 +1,11 @@
 """The train step's auxiliary-loss settings: read from config.train once, validated on construction."""
 
 import dataclasses
-import importlib.util
-import pathlib
 
 import ml_collections
 import pytest
 
+from kosmos_jax.experiments.spec import load_config
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
 
 
@@ -19,10 +18,7 @@ def test_a_config_sets_what_it_names_and_the_rest_keep_their_defaults():
 
 
 def test_the_demo_config_names_every_setting():
-    spec = importlib.util.spec_from_file_location("kosmos_e", pathlib.Path(__file__).parents[1] / "configs" / "kosmos_e.py")
-    kosmos_e = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(kosmos_e)
-    train = kosmos_e.get_config("demo").train
+    train = load_config("configs/kosmos_e.py:demo").train
     assert {f.name for f in dataclasses.fields(AuxiliaryLosses)} <= set(train.keys())
     assert AuxiliaryLosses.from_config(train).weights() == {"pointing": 1.0, "tower_angle": 4.0, "slot_angle": 1.0}
 

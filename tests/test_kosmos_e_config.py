@@ -1,19 +1,13 @@
 """configs/kosmos_e.py: every variant loads, and demo_gpu is demo with more photos and steps only."""
 
-import importlib.util
-import pathlib
-
 import pytest
 
-CONFIG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "kosmos_e.py"
+from kosmos_jax.experiments.spec import config_module
 
 
 @pytest.fixture(scope="module")
 def kosmos_e():
-    spec = importlib.util.spec_from_file_location("_config_kosmos_e", CONFIG)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return config_module("configs/kosmos_e.py")
 
 
 def test_every_variant_loads_under_its_own_name_and_an_unknown_one_is_refused(kosmos_e):

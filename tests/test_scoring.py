@@ -1,9 +1,7 @@
 """Test views, baselines and fold scoring of the two protocols, and the demo end to end."""
 
-import importlib.util
 import json
 import math
-import pathlib
 
 import numpy as np
 import pytest
@@ -16,9 +14,6 @@ from kosmos_jax.dataset import views
 from kosmos_jax.scoring import fold_scores, no_learning
 from kosmos_jax.experiments import spec
 
-_spec = importlib.util.spec_from_file_location("demo_settings", pathlib.Path(__file__).parents[1] / "configs" / "demo.py")
-demo_settings = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(demo_settings)
 
 
 def make_photo(index, grasps, rng):
@@ -136,7 +131,7 @@ def test_honest_folds_keep_photos_and_objects_together():
 
 
 def demo_config(tmp_path, **overrides):
-    config = demo_settings.get_config("tiny")
+    config = spec.load_config("configs/demo.py:tiny")
     config.out = str(tmp_path)  # an absolute path wins over the repository root
     config.update(overrides)
     return config

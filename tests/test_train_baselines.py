@@ -69,8 +69,6 @@ def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
 def test_microbatches_add_up_to_the_whole_batch_s_step():
     """GG-CNN2 (no BatchNorm, so no per-microbatch statistics): one step on 8 views makes the same
     update whole (no scan) as in 2 or 4 microbatches (the unrolled scan)."""
-    import importlib.util
-
     import jax
 
     from kosmos_jax.baselines.family import BaselineConfig, make_family
@@ -79,10 +77,9 @@ def test_microbatches_add_up_to_the_whole_batch_s_step():
     from kosmos_jax.train.mesh import replicated
     from kosmos_jax.train.optimizer import make_optimizer
 
-    spec = importlib.util.spec_from_file_location("baseline_configs", REPO / "configs" / "baselines.py")
-    configs = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(configs)
-    optimizer = configs.get_config("ggcnn2_d").optimizer
+    from kosmos_jax.experiments.spec import load_config
+
+    optimizer = load_config("configs/baselines.py:ggcnn2_d").optimizer
     family = make_family(BaselineConfig(network="ggcnn2", mode="depth"))
     mesh = make_mesh(1, 1, 1, devices=jax.devices()[:1])
     tx, schedule = make_optimizer(optimizer, 10)

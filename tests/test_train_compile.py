@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from kosmos_jax.experiments.spec import load_config
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.preprocess import STORED_IMAGE_SIZE
 from kosmos_jax.train import compile as train_compile
@@ -20,10 +21,7 @@ COMMAND = [sys.executable, "-m", "kosmos_jax.train.compile", "--config=configs/k
 
 
 def _config(variant):
-    spec = importlib.util.spec_from_file_location("kosmos_e_config", os.path.join(REPO, "configs", "kosmos_e.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.get_config(variant)
+    return load_config(f"configs/kosmos_e.py:{variant}")
 
 
 def _run(*args, timeout=60):

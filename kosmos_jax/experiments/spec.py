@@ -155,13 +155,20 @@ def config_path(path: str) -> pathlib.Path:
     raise ExperimentError(f"config file {path!r} does not exist (looked in {pathlib.Path.cwd()} and {REPO})")
 
 
+def config_module(path: str):
+    """A config file as a module (config files are not a package), found as config_path finds it."""
+    file = config_path(path)
+    module_spec = importlib.util.spec_from_file_location(f"_config_{file.stem}", file)
+    module = importlib.util.module_from_spec(module_spec)
+    module_spec.loader.exec_module(module)
+    return module
+
+
 def load_config(spec: str) -> ml_collections.ConfigDict:
     """A training config from "FILE[:VARIANT]", as config_flags reads it: the file's get_config(VARIANT)."""
     path, _, variant = spec.partition(":")
     file = config_path(path)
-    module_spec = importlib.util.spec_from_file_location(f"_experiment_arm_{file.stem}", file)
-    module = importlib.util.module_from_spec(module_spec)
-    module_spec.loader.exec_module(module)
+    module = config_module(path)
     if not hasattr(module, "get_config"):
         raise ExperimentError(f"{file} has no get_config()")
     return module.get_config(variant or None)
