@@ -1,4 +1,4 @@
-"""configs/kosmos_e.py: every variant loads, and demo_gpu is demo with more photos and steps only."""
+"""configs/kosmos_e.py: every variant loads; demo_photos and demo_gpu change only what they say."""
 
 import pytest
 
@@ -27,3 +27,13 @@ def test_demo_gpu_is_the_demo_on_more_photos_for_more_steps(kosmos_e):
             *parents, leaf = changed
             (config[parents[0]] if parents else config).pop(leaf)
     assert gpu == demo  # everything else is the demo's own: its build, model, optimiser, losses, decoding
+
+
+def test_demo_photos_is_the_demo_on_four_times_the_photos_with_a_quarter_of_the_views_each(kosmos_e):
+    demo, photos = kosmos_e.get_config("demo").to_dict(), kosmos_e.get_config("demo_photos").to_dict()
+    assert photos["data"]["synthetic_photos"] * photos["data"]["build"]["augmentations"] == \
+        demo["data"]["synthetic_photos"] * demo["data"]["build"]["augmentations"] == 4800
+    assert photos["data"]["synthetic_photos"] == 1200
+    for config in (demo, photos):
+        config.pop("variant"), config["data"].pop("synthetic_photos"), config["data"]["build"].pop("augmentations")
+    assert photos == demo
