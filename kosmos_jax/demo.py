@@ -90,6 +90,7 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
         if not start.is_dir():
             raise FileNotFoundError(f"config.init_from={config.init_from}: folder {start} does not exist")
         train_config.init_from = str(start)
+        train_config.model.value_token_code = 0.0  # only for embeddings made afresh: these are loaded
     train_config.data.root = str(out / "datasets")
     workdir = out / "run"
     started = time.perf_counter()
