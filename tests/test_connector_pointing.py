@@ -190,6 +190,7 @@ def test_the_grasp_cell_token_is_the_token_of_the_patch_under_the_centre_past_th
     assert np.array_equal(picked, np.stack([tokens[0, 1], tokens[1, 7]]))
 
 
+@pytest.mark.slow  # 68 s (make test's --durations, 2026-11-27, 2 cores)
 def test_the_train_step_logs_the_tower_and_slot_angle_and_offset_losses_of_the_model_it_updates():
     """Step 0's logged auxiliary losses are the loss functions of the initial model's own features and
     slots (dropout off), per loss token; each is logged only when its weight is set."""

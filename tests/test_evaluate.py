@@ -31,6 +31,8 @@ from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
+# one worker: the tests share one trained run, which each worker would otherwise train again
+pytestmark = pytest.mark.xdist_group("evaluate")
 
 
 def run_module(*args) -> subprocess.CompletedProcess:
@@ -344,6 +346,7 @@ def test_image_use_scores_each_example_with_its_own_another_and_a_blank_image(wo
     assert "no checkpoint of step 7" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # 62 s (make test's --durations, 2026-11-27, 2 cores)
 def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, capsys):
     import jax.numpy as jnp
     import optax
@@ -374,6 +377,7 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     assert json.loads(capsys.readouterr().out)["steps"] == 1
 
 
+@pytest.mark.slow  # 31 s and 98 s (make test's --durations, 2026-11-27, 2 cores)
 @pytest.mark.parametrize("run_fixture, places", [("workdir", {"tower", "slots"}),
                                                   ("values_workdir", {"tower", "slots", "decoder", "answer"})])
 def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_untrained_model(
@@ -402,6 +406,7 @@ def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_
     assert json.loads(capsys.readouterr().out)["step"] == 2
 
 
+@pytest.mark.slow  # 72 s with the values run it trains (make test's --durations, 2026-11-27, 2 cores)
 def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workdir, tmp_path, capsys):
     from kosmos_jax.evaluate.run_scores import evaluate
 

@@ -75,6 +75,7 @@ def case_study(tmp_path_factory):
     return execute("case_study.ipynb", tmp), tmp
 
 
+@pytest.mark.slow  # 82 s with the tiny run it trains (make test's --durations, 2026-11-27, 2 cores)
 @pytest.mark.xdist_group("case_study")
 def test_case_study_trains_tiny_and_draws_one_grasp_per_kind(case_study):
     notebook, tmp = case_study
@@ -87,6 +88,7 @@ def test_case_study_trains_tiny_and_draws_one_grasp_per_kind(case_study):
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # shares the case_study fixture of the test above
 @pytest.mark.xdist_group("case_study")
 def test_case_study_opens_the_run_named_by_kosmos_run(case_study, tmp_path):
     _, tmp = case_study

@@ -31,6 +31,8 @@ from kosmos_jax.workdir.export import export_pretrained
 from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
+# one worker: the tests share one trained run, which each worker would otherwise train again
+pytestmark = pytest.mark.xdist_group("predict")
 
 
 def run_module(*args) -> subprocess.CompletedProcess:

@@ -120,6 +120,7 @@ def test_sigterm_then_kill_9_resume_with_bit_identical_losses(reference, dataset
     assert train_losses(workdir) == train_losses(reference)  # exact floats, every step
 
 
+@pytest.mark.slow  # 67 s after the reference (make test's --durations, 2026-11-27, 2 cores)
 def test_eight_devices_log_the_losses_of_one(reference, dataset_dir, tmp_path):
     train(tmp_path, dataset_dir, "--config.train.steps=5", "--config.mesh.data=2", "--config.mesh.fsdp=2",
           "--config.mesh.tensor=2", devices=8)

@@ -42,6 +42,7 @@ def runs(tmp_path_factory):
     return whole, resumed, second
 
 
+@pytest.mark.slow  # 83 s: trains the runs fixture (make test's --durations, 2026-11-27, 2 cores)
 def test_tiny_baseline_lowers_the_loss_and_scores_grasps(runs):
     whole, _, _ = runs
     losses = train_losses(whole)
@@ -52,6 +53,7 @@ def test_tiny_baseline_lowers_the_loss_and_scores_grasps(runs):
     assert 0.0 <= test[0]["grasp_accuracy"] <= 100.0 and np.isfinite(test[0]["loss"])
 
 
+@pytest.mark.slow  # shares the runs fixture of the test above
 def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
     whole, resumed, second = runs
     assert "resuming" in second.stderr and "from step 2" in second.stderr

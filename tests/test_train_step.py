@@ -211,6 +211,7 @@ def test_steps_lower_the_loss_on_a_fixed_batch():
     assert float(metrics["learning_rate"]) == pytest.approx(1e-2 * (1 - 3 / 10))
 
 
+@pytest.mark.slow  # 21 s and 34 s (make test's --durations, 2026-11-27, 2 cores)
 @pytest.mark.parametrize("connector_dense_std", [None, 1.0])
 def test_steps_learn_an_answer_only_the_image_holds_once_the_connector_passes_the_image(connector_dense_std):
     """One prompt, eight photos, a different one-token answer to each: only the image path can lower
@@ -238,6 +239,7 @@ def test_steps_learn_an_answer_only_the_image_holds_once_the_connector_passes_th
         assert own < 0.1 and swapped > np.log(BATCH), (own, swapped)
 
 
+@pytest.mark.slow  # 38 s (make test's --durations, 2026-11-27, 2 cores)
 def test_scanned_rematerialised_bfloat16_model_trains_and_decays_the_same_weights():
     options = TINY.replace(scan_layers=True, remat=True, compute_dtype="bfloat16")
     stacked, plain = _params(options), _params(TINY)
@@ -333,6 +335,7 @@ def test_a_rows_dropout_mask_follows_its_example_id_not_its_place():
         assert nnx.clone(dropout)(ones, deterministic=True) is ones
 
 
+@pytest.mark.slow  # 38 s (make test's --durations, 2026-11-27, 2 cores)
 def test_a_rows_dropout_follows_its_example_through_the_train_step():
     """The loss (of the parameters before the update: dropout noise only) of a batch and of the same
     examples in another order, in one microbatch or two; another example id moves it."""
