@@ -123,6 +123,7 @@ def _squares(count, seed):
     return images, grasp, cells[:, 1] * GRID + cells[:, 0]
 
 
+@pytest.mark.slow  # 27 s (make test's --durations, 2026-11-27 14:25, 2 cores)
 def test_the_pointing_loss_teaches_the_latent_queries_to_look_at_the_grasp_patch_of_new_images():
     cfg = NO_DROPOUT.replace(connector_dense_std=1.0, connector_grid_code=1.0)
     on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])

@@ -140,6 +140,7 @@ def test_the_export_command_refuses_bad_input_in_one_line(grid_run, exported, tm
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # 47 s (make test's --durations, 2026-11-27 14:25, 2 cores)
 def test_training_starts_from_the_folder(exported, tmp_path):
     done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={tmp_path / 'run'}",
                       f"--config.data.root={tmp_path / 'data'}", "--config.train.steps=1",

@@ -135,6 +135,7 @@ def test_import_into_the_scanned_layout_names_a_bad_layer(tmp_path):
         weights.load_pretrained(tmp_path, scan_layers=True)
 
 
+@pytest.mark.slow  # 31 s (make test's --durations, 2026-11-27 14:25, 2 cores)
 def test_gradients_are_the_same_with_remat_and_scan_and_remat_checkpoints_every_block(ref):
     args, pixels = fixture_args(ref), pixels_of(ref)
     targets = jnp.roll(args[0], -1, axis=1)

@@ -159,6 +159,7 @@ def test_two_processes_log_the_losses_of_one_process_with_dropout_on(reference, 
     np.testing.assert_allclose([two[s] for s in two], [one[s] for s in two], rtol=1e-4)
 
 
+@pytest.mark.slow  # 31 s (make test's --durations, 2026-11-27 14:25, 2 cores)
 def test_a_non_finite_step_stops_the_run_naming_the_step_and_its_examples(dataset_dir, tmp_path):
     done = train(tmp_path, dataset_dir, "--config.train.steps=5", "--config.optimizer.peak_lr=1e30",
                  "--config.optimizer.warmup_steps=0", "--config.train.checkpoint_every=1", expect=1)
