@@ -11,7 +11,8 @@ Variants:
          cores, 300 photos of 16 augmented views each
   demo_photos  what `make demo` trains: demo on 1,200 photos of 4 views each, the same number of views
          (results/scale_study: 42.49 on validation against demo's 36.63, same steps)
-  demo_gpu  demo on four times the photos for three times the steps: minutes on a GPU, hours on 2 cores
+  demo_gpu  demo on four times the photos for three times the steps: minutes on a GPU, about an hour on 2
+         cores (53 minutes, results/pretrain/README.md)
          (results/scale_study: 48.35 on validation against 33.33 on demo's 300 photos, same steps)
   demo_finetune  demo's data and schedule from a pretraining run (configs/pretrain.py:demo):
          give --config.init_from=ITS_WORKDIR (its tokenizer and model come with it)

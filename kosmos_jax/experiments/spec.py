@@ -167,10 +167,9 @@ def config_module(path: str):
 def load_config(spec: str) -> ml_collections.ConfigDict:
     """A training config from "FILE[:VARIANT]", as config_flags reads it: the file's get_config(VARIANT)."""
     path, _, variant = spec.partition(":")
-    file = config_path(path)
     module = config_module(path)
     if not hasattr(module, "get_config"):
-        raise ExperimentError(f"{file} has no get_config()")
+        raise ExperimentError(f"{module.__file__} has no get_config()")
     return module.get_config(variant or None)
 
 
