@@ -57,3 +57,5 @@ wait $val_pid $small_pid; arm $SMALL &
 wait $large_pid; arm $LARGE &
 wait
 stamp end
+# the device tool returns only a few files of a call (2026-11-27: 8 of 27): everything else as one archive
+tar czf $OUT/records.tgz -C $OUT scale paper_step && rm -rf $OUT/scale $OUT/paper_step
