@@ -111,9 +111,12 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
 
 
 def scored_rows(fields: dict, figures_of: list[tuple[str, dict]]) -> list[dict]:
-    """One row per (predictor, scene), "all" first, each with `fields`."""
+    """One row per (predictor, scene), "all" first, each with `fields`; a decoded model's rows also
+    with `angle_at_centre` (percent of its angles within 30 degrees of the ground truth nearest its
+    answered centre)."""
     return [dict(fields, backend="exact", scene=scene, predictor=predictor, mean=round(figure["accuracy"], 2),
-                 instructions=figure["instructions"])
+                 instructions=figure["instructions"],
+                 **({"angle_at_centre": figure["angle_at_centre"]["within_30_deg"]} if "angle_at_centre" in figure else {}))
             for predictor, figures in figures_of
             for scene, figure in [("all", figures)] + sorted(figures["by_scene"].items())]
 
@@ -177,6 +180,10 @@ def print_scenes(rows: list[dict], what: str) -> None:
     cell = {(r["predictor"], r["scene"]): f"{r['mean']:6.2f} ({r['instructions']})" for r in rows}
     for predictor in predictors:
         print(f"{predictor:<15}" + "".join(f"{cell.get((predictor, s), '-'):>18}" for s in scenes))
+    fits = {r["scene"]: f"{r['angle_at_centre']:6.2f} ({r['instructions']})" for r in rows if "angle_at_centre" in r}
+    if fits:
+        print(f"{'(angle fit)':<15}" + "".join(f"{fits.get(s, '-'):>18}" for s in scenes))
+        print("angle fit: kosmos_e's angles within 30 degrees of the ground truth nearest its answered centre, in percent")
 
 
 def print_table(rows: list[dict]) -> None:

@@ -25,7 +25,7 @@ from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_embeddings import angle_token_ids
 from kosmos_jax.scoring.instructions import combine, group_instructions
 from kosmos_jax.scoring.model_scores import GraspEvaluation
-from kosmos_jax.scoring.tally import distinct, markdown, successes
+from kosmos_jax.scoring.tally import angle_at_centre, distinct, markdown, successes
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.workdir.run import open_run
@@ -100,9 +100,12 @@ def test_a_checkpoint_is_decoded_parsed_and_scored_end_to_end(evaluated):
         assert set(spread) == {"texts", "centres", "angles", "grasps"}
         assert 1 <= spread["centres"] <= results["instructions"] and 1 <= spread["angles"] <= results["instructions"]
         assert spread["texts"] <= results["examples"] and spread["grasps"] <= results["instructions"]
+    fit = results["angle_at_centre"]
+    assert fit["instructions"] == results["instructions"] and 0 <= fit["within_30_deg"] <= 100
+    assert results["by_scene"]["single"]["angle_at_centre"] == fit
     table = (folder / "results.md").read_text()
     assert "| all |" in table and "target ceiling |" in table and "| 100.00 |" in table
-    assert "Distinct (constrained) answers:" in table
+    assert "Distinct (constrained) answers:" in table and "Angle at the answered centre:" in table
     rows = [json.loads(line) for line in (folder / "answers.jsonl").read_text().splitlines()]
     assert all(row["target_correct"] for row in rows)
 
@@ -207,6 +210,26 @@ def test_distinct_counts_each_part_of_hand_made_answers():
                                  record("location", "angle", "single", sentence, photo="pcd0101")])
     assert distinct(stated, {0: ("x_1 y_2", parsed(1, 2)), 1: ("x_1 y_3", parsed(1, 3))}) == \
         {"texts": 2, "centres": 2, "angles": 0, "grasps": 2}
+
+
+def test_the_angle_is_judged_against_the_ground_truth_nearest_the_answered_centre():
+    two = record("location")
+    # two ground truths: at (100, 50) turned 0, at (20, 50) turned 80 degrees
+    two["answers"] = np.array([[100, 50, 40, 20, 0.0], [20, 50, 40, 20, np.radians(80)]], np.float32)
+    instructions = group_instructions([two, record("angle")]) * 5
+    grasps = np.array([[95, 50, np.radians(29)],     # near the first, 29 degrees off: fits
+                       [95, 50, np.radians(80)],     # near the first, the second's angle: no fit
+                       [30, 60, np.radians(60)],     # near the second, 20 degrees off: fits
+                       [30, 60, np.radians(-100)],   # -100 is 80 modulo 180: fits
+                       [np.nan, np.nan, np.nan]])    # an unparsed answer: a miss, out of the median
+    fit = angle_at_centre(instructions, grasps)
+    assert fit == {"within_30_deg": 60.0, "instructions": 5, "median_deg": 24.5}  # median of 29, 80, 20, 0
+    # the metric needs the IoU as well; this figure judges the angle alone, wherever the centre fell
+    far = np.array([[400, 400, 0.0]])
+    assert angle_at_centre(instructions[:1], far)["within_30_deg"] == 100.0
+    assert not successes(instructions[:1], far, "honest")[0]
+    empty = angle_at_centre([], np.zeros((0, 3)))
+    assert empty["instructions"] == 0 and np.isnan(empty["within_30_deg"]) and empty["median_deg"] is None
 
 
 def test_the_table_puts_the_target_ceiling_beside_the_accuracy_and_reads_older_results():

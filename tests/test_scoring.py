@@ -183,6 +183,20 @@ def test_demo_refuses_a_missing_cornell_folder(tmp_path):
         demo.run(demo_config(tmp_path, cornell=str(tmp_path / "nowhere")))
 
 
+def test_the_scene_table_puts_the_model_s_angle_fit_under_its_accuracy(capsys):
+    fields = dict(data="synthetic-40-seed1", protocol="honest", split="fresh", step=8, workdir="run")
+    model = {"accuracy": 50.0, "instructions": 4, "angle_at_centre": {"within_30_deg": 75.0},
+             "by_scene": {"single": {"accuracy": 50.0, "instructions": 4, "angle_at_centre": {"within_30_deg": 75.0}}}}
+    centre = {"accuracy": 0.0, "instructions": 4, "by_scene": {"single": {"accuracy": 0.0, "instructions": 4}}}
+    rows = demo.scored_rows(fields, [("kosmos_e", model), ("image_centre", centre)])
+    assert [r.get("angle_at_centre") for r in rows] == [75.0, 75.0, None, None]
+    demo.print_scenes(rows, "fresh")
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-2].split() == ["(angle", "fit)", "75.00", "(4)", "75.00", "(4)"]
+    demo.print_scenes(rows[2:], "fresh")  # a table with no decoded model has no angle line
+    assert "angle fit" not in capsys.readouterr().out
+
+
 @pytest.mark.slow  # a tiny training run, its build and decoding: about 90 s on 2 loaded cores
 def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instructions(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(demo, "DEFAULT_CORNELL", tmp_path / "absent")
@@ -211,6 +225,11 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     model = {r["scene"]: r["mean"] for r in fresh if r["predictor"] == "kosmos_e"}
     assert model["multi"] == pytest.approx(written["by_scene"]["multi"]["accuracy"], abs=0.01)
     assert "scene multi" in out and "never trained on" in out
+    # the model's rows, and only its, carry its angle fit, as the evaluate command wrote it
+    assert {r["predictor"] for r in rows if "angle_at_centre" in r} == {"kosmos_e"}
+    fit = {r["scene"]: r["angle_at_centre"] for r in fresh if r["predictor"] == "kosmos_e"}
+    assert fit["multi"] == written["by_scene"]["multi"]["angle_at_centre"]["within_30_deg"]
+    assert "(angle fit)" in out
     demo.run(demo_config(tmp_path, steps=6))  # a finished run is reused, not trained again
     assert json.loads((tmp_path / "results.json").read_text())[: len(trained)] == trained
     # another demo that starts from this one's run: its config names the start, its tokenizer is the start's

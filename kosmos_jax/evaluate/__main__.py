@@ -17,6 +17,9 @@ scored under the run's protocol; a Cornell folder under the honest one. results.
                      combining location and angle, or of the protocol's w and h);
   distinct           {"answers": ..., "targets": ...}: how many distinct texts, centres, angles
                      and combined grasps the constrained answers and the targets hold;
+  angle_at_centre    {within_30_deg, instructions, median_deg}: the constrained grasps whose angle is
+                     within 30 degrees of the ground truth nearest their centre (the angle judged
+                     where the answer put the grasp; an unparsed answer is a miss);
   by_kind, by_scene  {group: accuracy, instructions, examples, unconstrained_accuracy,
                      unconstrained_parse_failures, target_ceiling};
 and the run, split, data source, text format and settings it was scored with.

@@ -121,7 +121,9 @@ class GraspEvaluation:
         """(figures of both decodings and of the targets, overall and per kind and scene, and the
         distinct answers and targets; one row per example with both answers)."""
         held, free = self.answers(params, constrained=True), self.answers(params, constrained=False)
-        success, free_success = self.successes(held), self.successes(free)
+        held_grasps = self.grasps(held)
+        success = tally.successes(self.instructions, held_grasps, self.protocol, self.backend)
+        free_success = self.successes(free)
         targets = self.targets()
         ceiling = self.successes(targets)
         free_failed = np.array([sum(not free[i][1].ok for i in inst.examples.values()) for inst in self.instructions])
@@ -141,7 +143,11 @@ class GraspEvaluation:
                    "target_ceiling": tally.percent(ceiling),
                    "distinct": {"answers": tally.distinct(self.instructions, held),
                                 "targets": tally.distinct(self.instructions, targets)},
+                   "angle_at_centre": tally.angle_at_centre(self.instructions, held_grasps),
                    "by_kind": groups(lambda i: i.kind), "by_scene": groups(lambda i: i.scene)}
+        for scene, members in tally.group_members(self.instructions, lambda i: i.scene).items():
+            results["by_scene"][scene]["angle_at_centre"] = tally.angle_at_centre(
+                [self.instructions[i] for i in members], held_grasps[members])
         records = getattr(self.split, "examples", self.split)
         rows = [{"example": index, "kind": instruction.kind, "scene": instruction.scene, "part": part,
                  "photo_ids": [text(p) for p in records[index]["photo_ids"]],

@@ -1,6 +1,7 @@
 """Grasps of instructions -> rectangle-metric successes -> accuracy overall, per kind and per scene,
 each with the number of instructions and of examples behind it; how many different answers were
-given (distinct); and its Markdown table.
+given (distinct); whether the answered angle fits the ground truth nearest the answered centre
+(angle_at_centre); and its Markdown table.
 
 An answer that did not parse is a miss: its grasp is NaN, which the metric never counts as a
 success, and no ground truth ever stands in for it (whatever the protocol).
@@ -12,6 +13,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from kosmos_jax import geometry
 from kosmos_jax.grasp_text import ParsedGrasp
 from kosmos_jax.metrics import grasp_success
 from kosmos_jax.scoring.fold_scores import WH_POLICY
@@ -38,6 +40,22 @@ def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol:
     gts, mask = padded_answers(instructions)
     found = grasp_success(np.asarray(grasps, np.float32), gts, mask, backend=backend, wh_policy=WH_POLICY[protocol])
     return np.asarray(found)
+
+
+def angle_at_centre(instructions: Sequence[Instruction], grasps: np.ndarray, limit_deg: float = 30.0) -> dict:
+    """Of the instructions: the percent whose grasp's angle is within `limit_deg` of the ground truth
+    whose centre lies nearest the grasp's centre (the angle judged where the answer put the grasp,
+    whatever its IoU), with the median of those angle errors in degrees. A grasp that did not parse
+    is a miss and is left out of the median; an angle the instruction itself states counts like an
+    answered one."""
+    errors = np.full(len(instructions), np.inf)
+    for row, (instruction, grasp) in enumerate(zip(instructions, np.asarray(grasps, np.float64))):
+        if np.isfinite(grasp).all() and len(instruction.answers):
+            nearest = instruction.answers[np.argmin(np.hypot(*(instruction.answers[:, :2] - grasp[:2]).T))]
+            errors[row] = np.degrees(geometry.angle_difference(grasp[2], float(nearest[4])))
+    answered = errors[np.isfinite(errors)]
+    return {f"within_{limit_deg:g}_deg": percent(errors <= limit_deg), "instructions": len(errors),
+            "median_deg": round(float(np.median(answered)), 2) if len(answered) else None}
 
 
 def percent(hits: np.ndarray) -> float:
@@ -144,4 +162,8 @@ def markdown(results: dict) -> str:
         spread = results["distinct"]
         table += (f"\nDistinct (constrained) answers: {distinct_text(spread['answers'])}; "
                   f"targets: {distinct_text(spread['targets'])}.\n")
+    if "angle_at_centre" in results:
+        fit = results["angle_at_centre"]
+        table += (f"\nAngle at the answered centre: {fit['within_30_deg']:.2f}% of {fit['instructions']} instructions "
+                  f"within 30 degrees of the ground truth nearest the answered centre (median {fit['median_deg']}).\n")
     return table
