@@ -436,10 +436,10 @@ def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workd
     configured, rows, _ = evaluate(values_workdir, max_examples=8)
     greedy, greedy_rows, _ = evaluate(values_workdir, max_examples=8, value_window=0)
     assert open_run(values_workdir).config.decode.value_window == configured["value_window"] == 32
-    assert greedy["value_window"] == 0
+    assert greedy["value_window"] == 0 and configured["angle_window"] == greedy["angle_window"] == 32
     for results in (configured, greedy):
         assert results["constrained"]["parse_failures"] == 0 and results["target_ceiling"] == 100.0
-    # only the coordinate values may differ: the angle answers are the mode's either way
+    # only the coordinate values may differ: the angle answers are read alike either way
     angles = [(a["answer"], b["answer"]) for a, b in zip(rows, greedy_rows) if a["part"] == "angle"]
     assert angles and all(a == b for a, b in angles)
     old = tmp_path / "made_before_decode"
@@ -447,7 +447,11 @@ def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workd
     description = json.loads((old / "run.json").read_text())
     del description["config"]["decode"]
     (old / "run.json").write_text(json.dumps(description))
-    assert evaluate(old, max_examples=8)[0]["value_window"] == 0  # runs made before the setting: greedy, as scored then
+    made_before = evaluate(old, max_examples=8)[0]
+    assert made_before["value_window"] == made_before["angle_window"] == 0  # runs made before the settings: greedy, as scored then
     with pytest.raises(SystemExit):
         main(["--workdir", str(values_workdir), "--value-window=-1"])
     assert "--value-window must be at least 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--workdir", str(values_workdir), "--angle-window=128"])
+    assert "--angle-window must be 0 to 127 bins" in capsys.readouterr().err

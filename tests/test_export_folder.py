@@ -108,6 +108,8 @@ def test_the_export_holds_the_extended_config_the_tokenizer_and_the_runs_text_fo
     assert described["tokenizer"] == {"scheme": run.tokenizer.scheme, "numbers": run.tokenizer.numbers}
     assert (described["protocol"], described["step"]) == (run.protocol, 2)
     assert described["workdir"] == str(grid_run.resolve()) and len(described["grasp_size"]) == 2
+    assert (described["value_window"], described["angle_window"]) == (run.config.decode.value_window,
+                                                                      run.config.decode.angle_window)
     assert (exported / "tokenizer.model").read_bytes() == (grid_run / "tokenizer.model").read_bytes()
 
 

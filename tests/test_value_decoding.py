@@ -1,4 +1,5 @@
-"""Reading coordinate value tokens as the local mean of the model's distribution (models.value_decoding)."""
+"""Reading coordinate value tokens, and angle tokens around the circle, as the local mean of the model's
+distribution (models.value_decoding)."""
 
 import jax.numpy as jnp
 import numpy as np
@@ -67,3 +68,40 @@ def test_a_negative_window_is_refused():
 
 def test_a_window_of_zero_gives_no_picker():
     assert value_picker(PIECES, 0) is None and isinstance(value_picker(PIECES, 4), LocalMean)
+
+
+ANGLES = ["<s>", "</s>", *[f"x_{v}" for v in range(20)], *[f"a_{k}" for k in range(256)]]
+ANGLE_ID = {piece: i for i, piece in enumerate(ANGLES)}
+
+
+def _angle_pick(window, angle_window, probabilities, allowed=None):
+    row = np.full(len(ANGLES), -1e4, np.float32)
+    for piece, p in probabilities.items():
+        row[ANGLE_ID[piece]] = np.log(p)
+    allowed = np.ones((1, len(ANGLES)), bool) if allowed is None else allowed
+    picked = LocalMean(ANGLES, window, angle_window).pick(jnp.asarray(row[None]), jnp.asarray(allowed))
+    return ANGLES[int(picked[0])]
+
+
+def test_an_angle_is_read_as_the_circular_local_mean_of_its_bins():
+    bump = {"a_100": 0.4, "a_104": 0.35, "a_140": 0.25}
+    assert _angle_pick(0, 0, bump) == "a_100"  # no angle window: the mode
+    # within 8 bins of the mode: (0 * 0.4 + 4 * 0.35) / 0.75 = 1.87 bins past it; a_140 lies outside
+    assert _angle_pick(0, 8, bump) == "a_102"
+    assert _angle_pick(0, 64, bump) == f"a_{round(100 + (4 * 0.35 + 40 * 0.25) / 1.0)}"
+    # a_255 and a_0 are neighbours (the same grasp axis): the mean of a_254 and a_2 falls between them
+    wrap = {"a_254": 0.5, "a_2": 0.5 - 1e-3}
+    assert _angle_pick(0, 8, wrap) == "a_0"
+    assert _angle_pick(0, 8, {"a_253": 0.6, "a_1": 0.4}) == "a_255"  # a_1 is 4 bins past a_253: 1.6 past it
+    # the coordinate window leaves angles alone, the angle window leaves coordinates alone
+    assert _angle_pick(8, 0, bump) == "a_100" and _angle_pick(0, 8, {"x_4": 0.5, "x_6": 0.5 - 1e-3}) == "x_4"
+
+
+def test_a_disallowed_angle_mean_keeps_the_mode_and_bad_angle_windows_are_refused():
+    allowed = np.ones((1, len(ANGLES)), bool)
+    allowed[0, ANGLE_ID["a_102"]] = False
+    assert _angle_pick(0, 8, {"a_100": 0.4, "a_104": 0.35}, allowed) == "a_100"
+    for bad in (-1, 128):
+        with pytest.raises(ValueError, match="angle window"):
+            LocalMean(ANGLES, 0, bad)
+    assert value_picker(ANGLES, 0, 0) is None and value_picker(ANGLES, 0, 16).angle_window == 16

@@ -64,6 +64,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--value-window", type=int, default=None, metavar="N",
                         help="read coordinate value tokens as the local mean within N values of the mode "
                              "(0: greedy; default: the run's config.decode.value_window, 0 for runs made before it)")
+    parser.add_argument("--angle-window", type=int, default=None, metavar="N",
+                        help="read angle tokens as the circular local mean within N bins of the mode (0: the mode; "
+                             "default: the run's config.decode.angle_window, 0 for runs made before it)")
     parser.add_argument("--json", action="store_true", help="print results.json as one line on stdout")
     parser.add_argument("--overlays", type=int, default=0, metavar="N",
                         help="draw N scored views of each instruction kind to eval/STEP/overlays/KIND.png (overlays.py)")
@@ -72,6 +75,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error("--batch-size must be positive and --max-examples at least 0")
     if args.value_window is not None and args.value_window < 0:
         parser.error("--value-window must be at least 0")
+    if args.angle_window is not None and not 0 <= args.angle_window < 128:
+        parser.error("--angle-window must be 0 to 127 bins")
     return args
 
 
@@ -81,7 +86,8 @@ def main(argv=None) -> int:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
             results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split, cornell=args.cornell,
                                              kinds=args.kinds, batch_size=args.batch_size,
-                                             max_examples=args.max_examples, value_window=args.value_window)
+                                             max_examples=args.max_examples, value_window=args.value_window,
+                                             angle_window=args.angle_window)
             write(results, rows, folder)
             write_overlays(args.workdir, results, rows, folder, args.overlays)
     except (RunError, FileNotFoundError, ValueError) as error:

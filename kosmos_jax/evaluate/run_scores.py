@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_value_window
+from kosmos_jax.models.value_decoding import configured_angle_window, configured_value_window
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.scoring.tally import markdown
@@ -32,11 +32,12 @@ Scored = tuple[dict, list[dict], pathlib.Path]  # results, one row per example, 
 
 def evaluate(workdir: str | os.PathLike, *, step: int | None = None, split: str = "test",
              cornell: str | os.PathLike | None = None, kinds: Sequence[str] = (NON,), batch_size: int = 16,
-             max_examples: int = 0, value_window: int | None = None) -> Scored:
+             max_examples: int = 0, value_window: int | None = None, angle_window: int | None = None) -> Scored:
     """The run in `workdir` scored at checkpoint `step` (None: the newest) on `split` of its data, or
     with `cornell` on every photo of that Cornell-format folder, asked the instruction `kinds`.
     `max_examples` decodes the first N examples (0: all). `value_window`: how coordinate value tokens
-    are read (`models.value_decoding`; 0: greedy; None: as the run's config says)."""
+    are read (`models.value_decoding`; 0: greedy; None: as the run's config says); `angle_window`: how
+    angle tokens are (0: the mode; None: as the run's config says)."""
     if batch_size < 1 or max_examples < 0:
         raise ValueError("batch_size must be positive and max_examples at least 0")
     settings = dict(step=step, split=split, cornell=cornell, kinds=tuple(kinds), batch_size=batch_size,
@@ -47,11 +48,11 @@ def evaluate(workdir: str | os.PathLike, *, step: int | None = None, split: str 
         from kosmos_jax.evaluate.baseline_run import evaluate_baseline
 
         return evaluate_baseline(workdir, **settings)
-    return evaluate_kosmos_e(workdir, **settings, value_window=value_window)
+    return evaluate_kosmos_e(workdir, **settings, value_window=value_window, angle_window=angle_window)
 
 
 def evaluate_kosmos_e(workdir, *, step: int | None, split: str, cornell, kinds: tuple[str, ...], batch_size: int,
-                      max_examples: int, value_window: int | None = None) -> Scored:
+                      max_examples: int, value_window: int | None = None, angle_window: int | None = None) -> Scored:
     """evaluate() on a KOSMOS-E run."""
     started = time.perf_counter()
     run = open_run(workdir)
@@ -67,13 +68,15 @@ def evaluate_kosmos_e(workdir, *, step: int | None, split: str, cornell, kinds: 
         source = {"dataset_dir": run.description["dataset_dir"]}
     if value_window is None:
         value_window = configured_value_window(run.config)
+    if angle_window is None:
+        angle_window = configured_angle_window(run.config)
     evaluation = GraspEvaluation(run.model_config, mesh, examples, run.tokenizer, run.format_config, protocol,
-                                 batch_size=batch_size, max_examples=max_examples, value_window=value_window)
+                                 batch_size=batch_size, max_examples=max_examples, value_window=value_window, angle_window=angle_window)
     figures, rows = evaluation.results(params)
     results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
                "split": label, **source, "representation": run.format_config.representation,
                "individual": run.format_config.individual, "angle_code": run.format_config.angle_code, **figures,
-               "max_examples": max_examples, "batch_size": batch_size, "value_window": value_window,
+               "max_examples": max_examples, "batch_size": batch_size, "value_window": value_window, "angle_window": angle_window,
                "seconds": round(time.perf_counter() - started, 2)}
     folder = run.workdir / "eval" / str(step)
     return results, rows, folder if label == "test" else folder / label

@@ -5,8 +5,11 @@ distribution is a blurred bump a few pixels to tens of pixels wide, and its mode
 blur's noise; `LocalMean(token_texts, window)` instead answers the probability-weighted mean value of
 the tokens of the mode's family within `window` values of the mode (among the tokens the constraint
 allows), rounded to the nearest value, and keeps the mode when that value's token is not allowed.
-Angle tokens (a_k) are left to the mode. A vocabulary without value tokens (numbers="digits") leaves
-every pick greedy.
+With `angle_window` > 0 an angle token (a_k, k of 256 bins over 180 degrees) is read the same way
+around the circle: the weighted mean of the bin offsets within `angle_window` bins of the mode, taken
+modulo 256 (a_255 and a_0 are neighbours), so the answer can fall between the bins the model
+favours; with 0 (the default) angle tokens are left to the mode. A vocabulary without value tokens
+(numbers="digits") leaves every pick greedy.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from kosmos_jax import geometry
 from kosmos_jax.models.value_embeddings import value_tokens
 
 
@@ -23,9 +27,15 @@ def configured_value_window(config) -> int:
     return int(config.get("decode", {}).get("value_window", 0))
 
 
-def value_picker(token_texts, window: int) -> LocalMean | None:
-    """The picker a decoder takes for `window` (models.decode.generate): None (greedy) for 0."""
-    return LocalMean(token_texts, window) if window else None
+def configured_angle_window(config) -> int:
+    """The angle window a run's config sets (`decode.angle_window`); 0 (the mode) for configs made before it."""
+    return int(config.get("decode", {}).get("angle_window", 0))
+
+
+def value_picker(token_texts, window: int, angle_window: int = 0) -> LocalMean | None:
+    """The picker a decoder takes for `window` and `angle_window` (models.decode.generate): None
+    (greedy) when both are 0."""
+    return LocalMean(token_texts, window, angle_window) if window or angle_window else None
 
 
 def greedy(logits: jax.Array, allowed: jax.Array) -> jax.Array:
@@ -37,11 +47,20 @@ class LocalMean:
     """`pick(logits, allowed) -> [B] tokens`: see the module docstring. Built once per vocabulary and
     window; a static argument of the jitted decoders (hashed by identity)."""
 
-    def __init__(self, token_texts, window: int):
+    def __init__(self, token_texts, window: int, angle_window: int = 0):
         if window < 0:
             raise ValueError(f"the value window must be >= 0 values, got {window}")
-        self.window, self.vocab_size = int(window), len(token_texts)
-        coordinates = {family: rows for family, rows in value_tokens(token_texts).items() if family != "a"}
+        if not 0 <= angle_window < geometry.ANGLE_BINS // 2:
+            raise ValueError(f"the angle window must be 0 to {geometry.ANGLE_BINS // 2 - 1} bins, got {angle_window}")
+        self.window, self.angle_window, self.vocab_size = int(window), int(angle_window), len(token_texts)
+        families = value_tokens(token_texts)
+        self.angle_bin = np.full(self.vocab_size, -1, np.int32)  # each a_k token's k, -1 for other tokens
+        self.angle_token = np.full(geometry.ANGLE_BINS, -1, np.int32)  # each bin's token, -1 where missing
+        if "a" in families:
+            ids, bins = families["a"]
+            inside = (bins >= 0) & (bins < geometry.ANGLE_BINS)
+            self.angle_bin[ids[inside]], self.angle_token[bins[inside]] = bins[inside], ids[inside]
+        coordinates = {family: rows for family, rows in families.items() if family != "a"}
         self.value = np.zeros(self.vocab_size, np.float32)
         self.family = np.full(self.vocab_size, -1, np.int32)
         every_value = np.concatenate([values for _, values in coordinates.values()] or [np.zeros(1, int)])
@@ -53,7 +72,27 @@ class LocalMean:
 
     def pick(self, logits: jax.Array, allowed: jax.Array) -> jax.Array:
         token = greedy(logits, allowed)
-        if not self.window or logits.shape[-1] < self.vocab_size or not (self.family >= 0).any():
+        if logits.shape[-1] < self.vocab_size:
+            return token
+        token = self._coordinate(logits, allowed, token)
+        return self._angle(logits, allowed, token)
+
+    def _angle(self, logits: jax.Array, allowed: jax.Array, token: jax.Array) -> jax.Array:
+        if not self.angle_window or not (self.angle_bin >= 0).any():
+            return token
+        bins = jnp.asarray(np.pad(self.angle_bin, (0, logits.shape[-1] - self.vocab_size), constant_values=-1))
+        mode = bins[token]
+        half = geometry.ANGLE_BINS // 2
+        offset = (bins[None] - mode[:, None] + half) % geometry.ANGLE_BINS - half  # signed, around the circle
+        near = (bins[None] >= 0) & (jnp.abs(offset) <= self.angle_window) & allowed
+        weights = jax.nn.softmax(jnp.where(near, logits, -jnp.inf), axis=-1)
+        mean = jnp.sum(jnp.where(near, weights * offset, 0.0), axis=-1)
+        local = jnp.asarray(self.angle_token)[(mode + jnp.round(mean).astype(jnp.int32)) % geometry.ANGLE_BINS]
+        usable = (mode >= 0) & (local >= 0) & jnp.take_along_axis(allowed, jnp.maximum(local, 0)[:, None], 1)[:, 0]
+        return jnp.where(usable, local, token)
+
+    def _coordinate(self, logits: jax.Array, allowed: jax.Array, token: jax.Array) -> jax.Array:
+        if not self.window or not (self.family >= 0).any():
             return token
         extra = logits.shape[-1] - self.vocab_size  # the model's vocabulary may be padded beyond the tokenizer's
         value = jnp.asarray(np.pad(self.value, (0, extra)))

@@ -30,7 +30,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_value_window, value_picker
+from kosmos_jax.models.value_decoding import configured_angle_window, configured_value_window, value_picker
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
@@ -80,7 +80,7 @@ class GraspPredictor:
     def __init__(self, model_config: Kosmos2Config, params, tokenizer: Tokenizer, format_config: FormatConfig, *,
                  protocol: str = "honest", grasp_size: tuple[float, float] = CORNELL_SIZE, mesh: Mesh | None = None,
                  batch_sizes: Sequence[int] = BATCH_SIZES, short_side: int = PHOTO_SHORT_SIDE, source: str = "",
-                 value_window: int = 0):
+                 value_window: int = 0, angle_window: int = 0):
         if tokenizer.vocab_size > model_config.text.vocab_size:
             raise RunFolderError(f"{source or 'the model'}: its vocabulary of {model_config.text.vocab_size} ids cannot "
                                  f"hold the tokenizer's {tokenizer.vocab_size}; is it the model's tokenizer?")
@@ -92,7 +92,7 @@ class GraspPredictor:
         self.context = model_config.text.max_position_embeddings
         self._questions = questions(tokenizer, format_config, model_config.text.vocab_size)
         self._decoder = Decoder(model_config, mesh if mesh is not None else make_mesh(1, -1, 1),
-                                value_picker(tokenizer.piece_texts(), value_window))
+                                value_picker(tokenizer.piece_texts(), value_window, angle_window))
 
     # -- loading --------------------------------------------------------------------------------
     @classmethod
@@ -109,6 +109,7 @@ class GraspPredictor:
             raise RunFolderError(str(error)) from None
         options.setdefault("grasp_size", run_grasp_size(run))
         options.setdefault("value_window", configured_value_window(run.config))
+        options.setdefault("angle_window", configured_angle_window(run.config))
         return cls(run.model_config, params, run.tokenizer, run.format_config, protocol=run.protocol, mesh=mesh,
                    source=f"{workdir} step {step}", **options)
 
@@ -134,7 +135,8 @@ class GraspPredictor:
         tokenizer = exported.get("tokenizer") if tokenizer is None else tokenizer
         scheme, numbers = scheme or exported.get("scheme", "fairseq"), numbers or exported.get("numbers", "digits")
         format_config = format_config or exported.get("format_config", FormatConfig())
-        options = {**{name: exported[name] for name in ("protocol", "grasp_size", "value_window") if name in exported},
+        options = {**{name: exported[name] for name in ("protocol", "grasp_size", "value_window", "angle_window")
+                      if name in exported},
                    **options}
         if not isinstance(tokenizer, Tokenizer):
             if not pathlib.Path(tokenizer).is_file():
@@ -226,7 +228,8 @@ def _exported(folder: pathlib.Path) -> dict:
         return {"tokenizer": folder / TOKENIZER_FILE, "scheme": described["tokenizer"]["scheme"],
                 "numbers": described["tokenizer"]["numbers"], "format_config": FormatConfig(**described["format"]),
                 "protocol": described["protocol"], "grasp_size": tuple(described["grasp_size"]),
-                "value_window": int(described.get("value_window", 0))}
+                "value_window": int(described.get("value_window", 0)),
+                "angle_window": int(described.get("angle_window", 0))}
     except ValueError as error:
         raise RunFolderError(str(error)) from None
     except (KeyError, TypeError) as error:  # fields of another shape than export writes

@@ -50,10 +50,11 @@ def first_instructions(instructions: Sequence[Instruction], max_examples: int) -
 class GraspEvaluation:
     def __init__(self, model_config: Kosmos2Config, mesh: Mesh, split, tokenizer: Tokenizer, config: FormatConfig,
                  protocol: str, *, batch_size: int = 16, max_examples: int = 0, backend: str = "exact",
-                 value_window: int = 0):
+                 value_window: int = 0, angle_window: int = 0):
         """`split`: a StoredSplit, or any sequence of records whose items hold their "image".
         `value_window` > 0 reads coordinate value tokens as the local mean within that many values of
-        the mode (`models.value_decoding`); 0 decodes greedily."""
+        the mode (`models.value_decoding`); 0 decodes greedily. `angle_window` > 0 reads angle tokens as the
+        circular local mean within that many bins of the mode; 0 answers the mode."""
         records = getattr(split, "examples", split)
         self.split, self.config, self.protocol, self.backend = split, config, protocol, backend
         every = group_instructions(records)
@@ -79,7 +80,7 @@ class GraspEvaluation:
                 filled = rows + [rows[0]] * (batch_size - len(rows))
                 padded = left_padded([prompts[i] for i in filled], length, tokenizer.pad_id)
                 self.batches.append((question, rows, padded))
-        self.decoder = Decoder(model_config, mesh, value_picker(tokenizer.piece_texts(), value_window))
+        self.decoder = Decoder(model_config, mesh, value_picker(tokenizer.piece_texts(), value_window, angle_window))
 
     @property
     def examples(self) -> int:

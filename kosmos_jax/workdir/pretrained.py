@@ -3,7 +3,8 @@
 export.py writes it beside config.json, model.safetensors and tokenizer.model: the run's text format
 (FormatConfig's fields), its tokenizer's id scheme and number mode, its protocol and the grasp size
 the predictor lends answers that state none, where it came from (step, workdir), and how its value
-tokens are read (value_window; folders exported before it was written are read greedily).
+tokens and angle tokens are read (value_window, angle_window; folders exported before they were
+written are read greedily).
 GraspPredictor.from_pretrained reads it. Plain JSON, no jax: the command line looks for it first.
 """
 
@@ -17,10 +18,11 @@ FIELDS = ("format", "tokenizer", "protocol", "grasp_size", "step", "workdir")
 
 
 def folder_description(format_fields: dict, scheme: str, numbers: str, protocol: str,
-                       grasp_size: tuple[float, float], step: int, workdir, value_window: int = 0) -> dict:
+                       grasp_size: tuple[float, float], step: int, workdir, value_window: int = 0,
+                       angle_window: int = 0) -> dict:
     return {"format": dict(format_fields), "tokenizer": {"scheme": scheme, "numbers": numbers}, "protocol": protocol,
             "grasp_size": [float(v) for v in grasp_size], "step": int(step), "workdir": str(workdir),
-            "value_window": int(value_window)}
+            "value_window": int(value_window), "angle_window": int(angle_window)}
 
 
 def write_description(folder, description: dict) -> pathlib.Path:
