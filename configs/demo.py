@@ -3,7 +3,8 @@
     python -m kosmos_jax.demo --config=configs/demo.py             # train the demo model, then the tables
     python -m kosmos_jax.demo --config=configs/demo.py:tiny        # a laptop smoke run (tiny model, 24 photos)
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=   # baselines only
-    python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=   # the demo model from scratch
+    python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_photos \
+        --config.init_from=                                        # the demo model from scratch
 """
 
 import ml_collections
@@ -13,7 +14,7 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     tiny = arg == "tiny"
     config = ml_collections.ConfigDict()
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
-    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_photos"  # "": no training
+    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_photos_finetune"  # "": no training
     config.steps = 0  # 0: the training config's own train.steps
     # a run's workdir or an exported folder to start from (relative to the repository root), given to the
     # training config as its config.init_from; "": from scratch. The default is the committed start

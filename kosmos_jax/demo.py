@@ -2,8 +2,8 @@
 
     python -m kosmos_jax.demo --config=configs/demo.py [--config.steps=N] [--config.cornell=PATH]
 
-1. Trains `config.train_config` (configs/kosmos_e.py:demo: a small model from scratch on the
-   project's synthetic scenes) in OUT/run, an ordinary workdir (`python -m kosmos_jax.evaluate
+1. Trains `config.train_config` (configs/kosmos_e.py:demo_photos_finetune: the demo's small model
+   fine-tuned on the project's synthetic scenes from the committed start, config.init_from) in OUT/run, an ordinary workdir (`python -m kosmos_jax.evaluate
    --workdir=OUT/run` and the notebooks open it); a finished run is reused, a stopped one resumed.
    With config.init_from (a run's workdir or an exported folder) it fine-tunes from that start.
    It decodes the held-out fold's answers and scores them (evaluate's code), and scores the
@@ -90,7 +90,6 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
         if not start.is_dir():
             raise FileNotFoundError(f"config.init_from={config.init_from}: folder {start} does not exist")
         train_config.init_from = str(start)
-        train_config.model.value_token_code = 0.0  # only for embeddings made afresh: these are loaded
     train_config.data.root = str(out / "datasets")
     workdir = out / "run"
     started = time.perf_counter()

@@ -389,6 +389,17 @@ def test_the_cpu_demo_variants_train_the_demo_recipe(name):
     assert config.protocols == "honest"  # the demo's photo-centre crops would replace the paper protocol's own
 
 
+def test_table1_cpu_pretrained_fine_tunes_the_shipped_start_as_make_demo_does():
+    tune = spec.load_config("configs/kosmos_e.py:demo_photos_finetune")
+    config = spec.load_config("configs/experiments/table1.py:cpu_pretrained")
+    assert spec.arm_names(config) == ["kosmos_e"] and config.protocols == "honest"
+    built = spec.arm_config(config, "kosmos_e")
+    assert built.init_from == "results/pretrain/demo_photos1200" and (spec.REPO / built.init_from).is_dir()
+    assert built.model == tune.model and built.optimizer == tune.optimizer and built.train == tune.train
+    assert built.data.source == "cornell" and built.data.build.kinds == "non"
+    assert built.data.build.train_crop == "image_centre" and built.require_init
+
+
 def test_the_cpu_demo_data_sweep_counts_photos_and_augmentations():
     """Two lines that meet at the demo itself (300 photos of 16 augmentations), both schemes."""
     config = spec.load_config("configs/experiments/data_size.py:cpu_demo")

@@ -1,4 +1,5 @@
-"""configs/kosmos_e.py: every variant loads; demo_photos and demo_gpu change only what they say."""
+"""configs/kosmos_e.py: every variant loads; demo_photos, demo_photos_finetune and demo_gpu change only
+what they say."""
 
 import pytest
 
@@ -37,3 +38,14 @@ def test_demo_photos_is_the_demo_on_four_times_the_photos_with_a_quarter_of_the_
     for config in (demo, photos):
         config.pop("variant"), config["data"].pop("synthetic_photos"), config["data"]["build"].pop("augmentations")
     assert photos == demo
+
+
+def test_demo_photos_finetune_is_demo_photos_from_a_start_at_a_lower_learning_rate(kosmos_e):
+    photos, tune = kosmos_e.get_config("demo_photos").to_dict(), kosmos_e.get_config("demo_photos_finetune").to_dict()
+    assert tune["require_init"] and not photos["require_init"]
+    assert tune["optimizer"]["peak_lr"] == kosmos_e.FINETUNE_PEAK_LR < photos["optimizer"]["peak_lr"]
+    assert photos["model"]["value_token_code"] > 0 and tune["model"]["value_token_code"] == 0  # loaded, not made
+    for config in (photos, tune):
+        config.pop("variant"), config.pop("require_init"), config["optimizer"].pop("peak_lr")
+        config["model"].pop("value_token_code")
+    assert tune == photos
