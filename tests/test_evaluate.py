@@ -25,7 +25,7 @@ from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_embeddings import angle_token_ids
 from kosmos_jax.scoring.instructions import combine, group_instructions
 from kosmos_jax.scoring.model_scores import GraspEvaluation
-from kosmos_jax.scoring.tally import angle_at_centre, distinct, markdown, successes
+from kosmos_jax.scoring.tally import angle_errors, angle_fit, distinct, markdown, successes
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.workdir.run import open_run
@@ -222,13 +222,14 @@ def test_the_angle_is_judged_against_the_ground_truth_nearest_the_answered_centr
                        [30, 60, np.radians(60)],     # near the second, 20 degrees off: fits
                        [30, 60, np.radians(-100)],   # -100 is 80 modulo 180: fits
                        [np.nan, np.nan, np.nan]])    # an unparsed answer: a miss, out of the median
-    fit = angle_at_centre(instructions, grasps)
-    assert fit == {"within_30_deg": 60.0, "instructions": 5, "median_deg": 24.5}  # median of 29, 80, 20, 0
+    errors = angle_errors(instructions, grasps)
+    np.testing.assert_allclose(errors, [29, 80, 20, 0, np.inf], atol=1e-4)  # float32 ground-truth angles
+    assert angle_fit(errors) == {"within_30_deg": 60.0, "instructions": 5, "median_deg": 24.5}
     # the metric needs the IoU as well; this figure judges the angle alone, wherever the centre fell
     far = np.array([[400, 400, 0.0]])
-    assert angle_at_centre(instructions[:1], far)["within_30_deg"] == 100.0
+    assert angle_fit(angle_errors(instructions[:1], far))["within_30_deg"] == 100.0
     assert not successes(instructions[:1], far, "honest")[0]
-    empty = angle_at_centre([], np.zeros((0, 3)))
+    empty = angle_fit(angle_errors([], np.zeros((0, 3))))
     assert empty["instructions"] == 0 and np.isnan(empty["within_30_deg"]) and empty["median_deg"] is None
 
 

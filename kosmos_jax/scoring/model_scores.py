@@ -124,6 +124,7 @@ class GraspEvaluation:
         held, free = self.answers(params, constrained=True), self.answers(params, constrained=False)
         held_grasps = self.grasps(held)
         success = tally.successes(self.instructions, held_grasps, self.protocol, self.backend)
+        angle_errors = tally.angle_errors(self.instructions, held_grasps)
         free_success = self.successes(free)
         targets = self.targets()
         ceiling = self.successes(targets)
@@ -144,11 +145,10 @@ class GraspEvaluation:
                    "target_ceiling": tally.percent(ceiling),
                    "distinct": {"answers": tally.distinct(self.instructions, held),
                                 "targets": tally.distinct(self.instructions, targets)},
-                   "angle_at_centre": tally.angle_at_centre(self.instructions, held_grasps),
+                   "angle_at_centre": tally.angle_fit(angle_errors),
                    "by_kind": groups(lambda i: i.kind), "by_scene": groups(lambda i: i.scene)}
         for scene, members in tally.group_members(self.instructions, lambda i: i.scene).items():
-            results["by_scene"][scene]["angle_at_centre"] = tally.angle_at_centre(
-                [self.instructions[i] for i in members], held_grasps[members])
+            results["by_scene"][scene]["angle_at_centre"] = tally.angle_fit(angle_errors[members])
         records = getattr(self.split, "examples", self.split)
         rows = [{"example": index, "kind": instruction.kind, "scene": instruction.scene, "part": part,
                  "photo_ids": [text(p) for p in records[index]["photo_ids"]],

@@ -1,7 +1,7 @@
 """Grasps of instructions -> rectangle-metric successes -> accuracy overall, per kind and per scene,
 each with the number of instructions and of examples behind it; how many different answers were
 given (distinct); whether the answered angle fits the ground truth nearest the answered centre
-(angle_at_centre); and its Markdown table.
+(angle_errors, angle_fit); and its Markdown table.
 
 An answer that did not parse is a miss: its grasp is NaN, which the metric never counts as a
 success, and no ground truth ever stands in for it (whatever the protocol).
@@ -42,19 +42,26 @@ def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol:
     return np.asarray(found)
 
 
-def angle_at_centre(instructions: Sequence[Instruction], grasps: np.ndarray, limit_deg: float = 30.0) -> dict:
-    """Of the instructions: the percent whose grasp's angle is within `limit_deg` of the ground truth
-    whose centre lies nearest the grasp's centre (the angle judged where the answer put the grasp,
-    whatever its IoU), with the median of those angle errors in degrees. A grasp that did not parse
-    is a miss and is left out of the median; an angle the instruction itself states counts like an
-    answered one."""
+ANGLE_LIMIT_DEG = 30.0  # the rectangle metric's angle limit (metrics.grasp_success's default)
+
+
+def angle_errors(instructions: Sequence[Instruction], grasps: np.ndarray) -> np.ndarray:
+    """float [G]: each grasp's angle error in degrees against the ground truth whose centre lies
+    nearest the grasp's centre (the angle judged where the answer put the grasp, whatever its IoU);
+    inf where the grasp did not parse. An angle the instruction itself states counts like an answered one."""
     errors = np.full(len(instructions), np.inf)
     for row, (instruction, grasp) in enumerate(zip(instructions, np.asarray(grasps, np.float64))):
         if np.isfinite(grasp).all() and len(instruction.answers):
             nearest = instruction.answers[np.argmin(np.hypot(*(instruction.answers[:, :2] - grasp[:2]).T))]
             errors[row] = np.degrees(geometry.angle_difference(grasp[2], float(nearest[4])))
+    return errors
+
+
+def angle_fit(errors: np.ndarray) -> dict:
+    """{within_30_deg: percent of `angle_errors` within the metric's limit (an unparsed grasp is a miss),
+    instructions, median_deg: their median, the unparsed left out (None when none parsed)}."""
     answered = errors[np.isfinite(errors)]
-    return {f"within_{limit_deg:g}_deg": percent(errors <= limit_deg), "instructions": len(errors),
+    return {"within_30_deg": percent(errors <= ANGLE_LIMIT_DEG), "instructions": len(errors),
             "median_deg": round(float(np.median(answered)), 2) if len(answered) else None}
 
 
