@@ -42,6 +42,7 @@ import sys
 
 from kosmos_jax.evaluate.overlays import write_overlays
 from kosmos_jax.evaluate.run_scores import evaluate, write
+from kosmos_jax.models.value_decoding import MAX_ANGLE_WINDOW
 from kosmos_jax.scoring.tally import markdown
 from kosmos_jax.workdir.files import RunError
 
@@ -75,8 +76,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error("--batch-size must be positive and --max-examples at least 0")
     if args.value_window is not None and args.value_window < 0:
         parser.error("--value-window must be at least 0")
-    if args.angle_window is not None and not 0 <= args.angle_window < 128:
-        parser.error("--angle-window must be 0 to 127 bins")
+    if args.angle_window is not None and not 0 <= args.angle_window <= MAX_ANGLE_WINDOW:
+        parser.error(f"--angle-window must be 0 to {MAX_ANGLE_WINDOW} bins")
     return args
 
 

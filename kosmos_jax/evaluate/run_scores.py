@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_angle_window, configured_value_window
+from kosmos_jax.models.value_decoding import configured_windows
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.scoring.tally import markdown
@@ -66,17 +66,16 @@ def evaluate_kosmos_e(workdir, *, step: int | None, split: str, cornell, kinds: 
     else:
         examples, label, protocol = run.split(split), split, run.protocol
         source = {"dataset_dir": run.description["dataset_dir"]}
-    if value_window is None:
-        value_window = configured_value_window(run.config)
-    if angle_window is None:
-        angle_window = configured_angle_window(run.config)
+    given = {"value_window": value_window, "angle_window": angle_window}  # None: as the run's config says
+    windows = {name: configured if given[name] is None else given[name]
+               for name, configured in configured_windows(run.config).items()}
     evaluation = GraspEvaluation(run.model_config, mesh, examples, run.tokenizer, run.format_config, protocol,
-                                 batch_size=batch_size, max_examples=max_examples, value_window=value_window, angle_window=angle_window)
+                                 batch_size=batch_size, max_examples=max_examples, **windows)
     figures, rows = evaluation.results(params)
     results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
                "split": label, **source, "representation": run.format_config.representation,
                "individual": run.format_config.individual, "angle_code": run.format_config.angle_code, **figures,
-               "max_examples": max_examples, "batch_size": batch_size, "value_window": value_window, "angle_window": angle_window,
+               "max_examples": max_examples, "batch_size": batch_size, **windows,
                "seconds": round(time.perf_counter() - started, 2)}
     folder = run.workdir / "eval" / str(step)
     return results, rows, folder if label == "test" else folder / label

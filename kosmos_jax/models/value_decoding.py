@@ -22,14 +22,15 @@ from kosmos_jax import geometry
 from kosmos_jax.models.value_embeddings import value_tokens
 
 
-def configured_value_window(config) -> int:
-    """The value window a run's config sets (`decode.value_window`); 0 (greedy) for configs made before it."""
-    return int(config.get("decode", {}).get("value_window", 0))
+WINDOWS = ("value_window", "angle_window")  # how a run's answers are read: config.decode's fields, kosmos_e.json's
+MAX_ANGLE_WINDOW = geometry.ANGLE_BINS // 2 - 1  # half the circle: a wider window would count a bin twice
 
 
-def configured_angle_window(config) -> int:
-    """The angle window a run's config sets (`decode.angle_window`); 0 (the mode) for configs made before it."""
-    return int(config.get("decode", {}).get("angle_window", 0))
+def configured_windows(config) -> dict[str, int]:
+    """{value_window, angle_window} as a run's config sets them (`config.decode`); 0 (the mode) for
+    each one a config made before it lacks."""
+    decode = config.get("decode", {})
+    return {name: int(decode.get(name, 0)) for name in WINDOWS}
 
 
 def value_picker(token_texts, window: int, angle_window: int = 0) -> LocalMean | None:
@@ -50,8 +51,8 @@ class LocalMean:
     def __init__(self, token_texts, window: int, angle_window: int = 0):
         if window < 0:
             raise ValueError(f"the value window must be >= 0 values, got {window}")
-        if not 0 <= angle_window < geometry.ANGLE_BINS // 2:
-            raise ValueError(f"the angle window must be 0 to {geometry.ANGLE_BINS // 2 - 1} bins, got {angle_window}")
+        if not 0 <= angle_window <= MAX_ANGLE_WINDOW:
+            raise ValueError(f"the angle window must be 0 to {MAX_ANGLE_WINDOW} bins, got {angle_window}")
         self.window, self.angle_window, self.vocab_size = int(window), int(angle_window), len(token_texts)
         families = value_tokens(token_texts)
         self.angle_bin = np.full(self.vocab_size, -1, np.int32)  # each a_k token's k, -1 for other tokens

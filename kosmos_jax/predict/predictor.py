@@ -30,7 +30,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_angle_window, configured_value_window, value_picker
+from kosmos_jax.models.value_decoding import WINDOWS, configured_windows, value_picker
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.predict.asking import Asked, ask
 from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderError
@@ -108,8 +108,7 @@ class GraspPredictor:
         except RunError as error:
             raise RunFolderError(str(error)) from None
         options.setdefault("grasp_size", run_grasp_size(run))
-        options.setdefault("value_window", configured_value_window(run.config))
-        options.setdefault("angle_window", configured_angle_window(run.config))
+        options = {**configured_windows(run.config), **options}
         return cls(run.model_config, params, run.tokenizer, run.format_config, protocol=run.protocol, mesh=mesh,
                    source=f"{workdir} step {step}", **options)
 
@@ -135,8 +134,7 @@ class GraspPredictor:
         tokenizer = exported.get("tokenizer") if tokenizer is None else tokenizer
         scheme, numbers = scheme or exported.get("scheme", "fairseq"), numbers or exported.get("numbers", "digits")
         format_config = format_config or exported.get("format_config", FormatConfig())
-        options = {**{name: exported[name] for name in ("protocol", "grasp_size", "value_window", "angle_window")
-                      if name in exported},
+        options = {**{name: exported[name] for name in ("protocol", "grasp_size", *WINDOWS) if name in exported},
                    **options}
         if not isinstance(tokenizer, Tokenizer):
             if not pathlib.Path(tokenizer).is_file():
@@ -228,8 +226,7 @@ def _exported(folder: pathlib.Path) -> dict:
         return {"tokenizer": folder / TOKENIZER_FILE, "scheme": described["tokenizer"]["scheme"],
                 "numbers": described["tokenizer"]["numbers"], "format_config": FormatConfig(**described["format"]),
                 "protocol": described["protocol"], "grasp_size": tuple(described["grasp_size"]),
-                "value_window": int(described.get("value_window", 0)),
-                "angle_window": int(described.get("angle_window", 0))}
+                **{name: int(described.get(name, 0)) for name in WINDOWS}}
     except ValueError as error:
         raise RunFolderError(str(error)) from None
     except (KeyError, TypeError) as error:  # fields of another shape than export writes

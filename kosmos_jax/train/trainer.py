@@ -29,7 +29,7 @@ from kosmos_jax.models import value_embeddings, weights
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_angle_window, configured_value_window
+from kosmos_jax.models.value_decoding import configured_windows
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.train import data as data_lib
@@ -189,8 +189,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     # the periodic evaluation reads the validation split when the dataset has one; the last one, test too
     watched = "validation" if "validation" in splits else "test"
     grasps = {name: GraspEvaluation(model_cfg, mesh, splits[name], tokenizer, FormatConfig(**dataset.identity["format"]),
-                                    dataset.identity["build"]["protocol"], value_window=configured_value_window(config),
-                                    angle_window=configured_angle_window(config))
+                                    dataset.identity["build"]["protocol"], **configured_windows(config))
               for name in dict.fromkeys((watched, "test"))}
     grasps["test"].decoder = grasps[watched].decoder  # one decoder: its compiled programs serve both splits
 

@@ -27,7 +27,7 @@ from flax import nnx
 from kosmos_jax.models import weights
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_angle_window, configured_value_window
+from kosmos_jax.models.value_decoding import configured_windows
 from kosmos_jax.workdir.sizes import run_grasp_size
 from kosmos_jax.scoring.decoding import fixed_streams
 from kosmos_jax.workdir.files import TOKENIZER_FILE
@@ -49,8 +49,7 @@ def export_pretrained(workdir, folder, step: int | None = None, max_shard_bytes:
     shutil.copyfile(run.workdir / TOKENIZER_FILE, folder / TOKENIZER_FILE)
     write_description(folder, folder_description(
         dataclasses.asdict(run.format_config), run.tokenizer.scheme, run.tokenizer.numbers, run.protocol,
-        run_grasp_size(run), step, run.workdir.resolve(), configured_value_window(run.config),
-        configured_angle_window(run.config)))
+        run_grasp_size(run), step, run.workdir.resolve(), **configured_windows(run.config)))
     return step
 
 
