@@ -131,7 +131,8 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.pointing_loss = 0.0  # weight of the connector's pointing loss (kosmos_jax.train.loss.pointing_sum); 0: none
     train.angle_smoothing = 0.0  # > 0: circular smooth labels on angle tokens, this many bins wide (train.loss); 0: none
     # "cell": the pointing loss asks for the grasp's patch; "bilinear": the four patches around its centre, each
-    # in proportion to its nearness, so the pointed slots carry the centre's grid code between cells
+    # in proportion to its nearness, so the pointed slots carry the centre's grid code between cells;
+    # "identity": latent query q looks at patch q, whatever the grasp (the slots become the patches)
     train.pointing_target = "cell"
     train.pointing_queries = 0  # > 0: the pointing loss points only the first this many latent queries; 0: all
     train.patch_angle_loss = 0.0  # weight of the loss that asks the grasp's patch token for its angle bin (train.loss); 0: none
@@ -140,6 +141,9 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     # weights of the losses that ask the tower's grasp patch and every slot where in that patch the centre lies
     train.tower_offset_loss = 0.0
     train.slot_offset_loss = 0.0
+    # weight of the loss that asks the decoder, at each answer token, which slot holds the target grasp's
+    # patch (train.loss.answer_pointing_sum; needs pointing_target "identity"); 0: none
+    train.answer_pointing_loss = 0.0
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

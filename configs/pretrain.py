@@ -16,6 +16,11 @@ Variants:
   demo_stream  the same model on scenes made on the fly (train/scene_stream.py): chunks of 64 new
         photos of seeds 10,000, 10,001, ..., never stored, never repeated; 600 stored scenes of seed
         1000 give the tokenizer, validation and test
+  demo_stream_ground  demo_stream with slots that are the patches (pointing_target "identity") and the
+        decoder asked, at each answer token, which slot holds the named object's grasp (answer_pointing_loss);
+        no slot-angle loss (it asks every slot for the target's angle). Refuted on validation: its
+        answers stop following the photo and its pointer picks a mosaic's named photo at chance
+        (results/pretrain/README.md, "Slots that are the patches")
   tiny  transformers' test-sized model on 16 scenes of seed 1000, seconds a step (the tests use it)
   tiny_stream  tiny on chunks of 8 scenes made on the fly
 
@@ -40,7 +45,7 @@ def _sibling(name: str):
 
 kosmos_e = _sibling("kosmos_e")
 
-VARIANTS = ("demo", "demo_stream", "tiny", "tiny_stream")
+VARIANTS = ("demo", "demo_stream", "demo_stream_ground", "tiny", "tiny_stream")
 STREAM_SEED = 10_000  # the first seed of scenes made on the fly (the *_stream variants): chunk k has seed 10,000 + k
 PRETRAIN_SEED = 1000  # the scenes' seed: no test or validation set of the project uses it
 
@@ -63,10 +68,12 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     else:
         base.data = kosmos_e.data_config(top=dict(synthetic_photos=16, synthetic_seed=PRETRAIN_SEED),
                                          augmentations=2, kinds="all", max_length=128, text_pieces=300)
-    if variant == "demo_stream":
+    if variant.startswith("demo_stream"):
         base.data.synthetic_photos = 600
         base.data.build.update(folds=15, validation_fraction=0.07)  # 40 test photos, 39 validation
         base.data.stream.update(photos=64, seed=STREAM_SEED)
+    if variant == "demo_stream_ground":
+        base.train.update(pointing_target="identity", slot_angle_loss=0.0, answer_pointing_loss=1.0)
     elif variant == "tiny_stream":
         base.data.stream.update(photos=8, seed=STREAM_SEED)
     return base

@@ -25,10 +25,15 @@ class AuxiliaryLosses:
     slot_angle_loss: float = 0.0
     tower_offset_loss: float = 0.0
     slot_offset_loss: float = 0.0
+    answer_pointing_loss: float = 0.0  # needs the slots to be the patches: pointing_target "identity"
 
     def __post_init__(self):
         if self.pointing_target not in POINTING_TARGETS:
             raise ValueError(f"pointing_target must be one of {POINTING_TARGETS}, got {self.pointing_target!r}")
+        if self.answer_pointing_loss and not (self.pointing_loss and self.pointing_target == "identity"):
+            raise ValueError("answer_pointing_loss asks the decoder for the target's patch among the image slots, "
+                             "which are patches only when the connector is taught so: give pointing_loss > 0 "
+                             "and pointing_target='identity'")
         negative = [f.name for f in dataclasses.fields(self)
                     if f.name != "pointing_target" and getattr(self, f.name) < 0]
         if negative:

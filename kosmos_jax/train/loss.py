@@ -64,7 +64,7 @@ def finite_example_tokens(loss_mask: jax.Array, required: jax.Array) -> jax.Arra
     return jnp.where(jnp.isfinite(required).all(-1), jnp.sum(loss_mask[:, 1:], axis=-1), 0)
 
 
-POINTING_TARGETS = ("cell", "bilinear")
+POINTING_TARGETS = ("cell", "bilinear", "identity")
 
 
 def pointing_weights(centres: jax.Array, side: int, target: str = "cell") -> jax.Array:
@@ -96,12 +96,47 @@ def pointing_sum(log_probs: jax.Array, grasp: jax.Array, image_side: int, loss_m
     per-token mean. `queries` > 0 points only the first that many latent queries and leaves the others
     free to look elsewhere."""
     side = grid_side(log_probs.shape[-1] - 1 - log_probs.shape[2])
+    if target == "identity":
+        return identity_pointing_sum(log_probs, side, loss_mask)
     if queries:
         log_probs = log_probs[:, :, :queries]
     weights = pointing_weights(jnp.nan_to_num(grasp[:, :2]) / image_side, side, target)
     patch_log_probs = log_probs[..., 1:1 + side * side].mean(axis=(1, 2))
     cross_entropy = -jnp.sum(weights * patch_log_probs, axis=-1)
     return jnp.sum(cross_entropy * finite_example_tokens(loss_mask, grasp[:, :2]))
+
+
+def identity_pointing_sum(log_probs: jax.Array, side: int, loss_mask: jax.Array) -> jax.Array:
+    """The pointing loss with target "identity" as a sum: latent query q asked to look at patch q (row-major),
+    whatever the instruction, so that slot q carries patch q's content and grid code and the decoder
+    gets every object of the view with its place, instead of 64 slots pointed at the one grasp that
+    an instruction it never sees names (on a mosaic, one of four). Needs as many queries as patches;
+    weighted by each example's loss tokens, as the other targets are."""
+    queries, patches = log_probs.shape[2], side * side
+    if queries != patches:
+        raise ValueError(f"pointing_target 'identity' needs one latent query a patch: {queries} queries, {patches} patches")
+    patch_log_probs = log_probs[..., 1:1 + patches].mean(axis=1)  # [B, Q, patches], over heads
+    cross_entropy = -jnp.trace(patch_log_probs, axis1=1, axis2=2) / queries
+    return jnp.sum(cross_entropy * jnp.sum(loss_mask[:, 1:], axis=-1))
+
+
+def answer_pointing_sum(hidden: jax.Array, image_mask: jax.Array, slots: int, grasp: jax.Array, image_side: int,
+                        loss_mask: jax.Array) -> jax.Array:
+    """The answer-pointing loss as a sum: at every position that predicts a loss token, the decoder's
+    final hidden state (hidden [B, T, D]) scores each of the `slots` image slots' final hidden states by
+    dot product over sqrt(D) (no parameters), and the cross-entropy of those scores against the slot of
+    the patch that holds the target grasp's centre. Unlike the connector's pointing, the decoder has
+    read the instruction, so this asks it to find the object an instruction names (on a mosaic, one of
+    four). The slots must be the patches in row-major order (pointing_target "identity"); image_mask
+    [B, T] marks them, contiguous. Each counted position adds its cross-entropy, as the text loss does;
+    an example without a target grasp adds nothing."""
+    positions = jnp.argmax(image_mask, axis=1)[:, None] + jnp.arange(slots)[None, :]
+    slot_states = jnp.take_along_axis(hidden, positions[..., None], axis=1)  # [B, slots, D]
+    scores = jnp.einsum("btd,bsd->bts", hidden[:, :-1], slot_states) / jnp.sqrt(jnp.float32(hidden.shape[-1]))
+    target = cell_index(jnp.nan_to_num(grasp[:, :2]) / image_side, grid_side(slots))
+    nll = -jnp.take_along_axis(jax.nn.log_softmax(scores, axis=-1), target[:, None, None], axis=-1)[..., 0]
+    counted = loss_mask[:, 1:] & jnp.isfinite(grasp[:, :2]).all(-1)[:, None]
+    return jnp.sum(jnp.where(counted, nll, 0.0))
 
 
 def patch_angle_sum(patch_tokens: jax.Array, angle_rows: jax.Array, grasp: jax.Array, image_side: int,

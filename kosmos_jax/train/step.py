@@ -34,12 +34,13 @@ from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.connector import grid_side
+from kosmos_jax.models.decoder import position_ids
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, split_model
 from kosmos_jax.models.layers import dropout_per_example
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.sharding import constrain, param_shardings
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
-from kosmos_jax.train.loss import (circular_kernel, means, patch_angle_sum, pointing_sum,
+from kosmos_jax.train.loss import (answer_pointing_sum, circular_kernel, means, patch_angle_sum, pointing_sum,
                                    slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
                                    tower_offset_sum)
 from kosmos_jax.train.mesh import batch_sharding, replicated
@@ -85,8 +86,15 @@ def logits(model: Kosmos2, batch: dict[str, jax.Array], image_embeds: jax.Array 
     them), from the connector's `image_embeds` when the caller has them already."""
     if image_embeds is None:
         image_embeds = model.image_to_text_projection(image_features(model, batch))
+    return model.text_model.logits(hidden_states(model, batch, image_embeds))
+
+
+def hidden_states(model: Kosmos2, batch: dict[str, jax.Array], image_embeds: jax.Array) -> jax.Array:
+    """The decoder's final hidden states [B, L, D] (float32) for a batch, from the connector's slots."""
     attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
-    return model(batch["tokens"], attention_mask, batch["image_mask"], image_embeds=image_embeds)
+    positions = position_ids(attention_mask, model.config.text.pad_token_id)
+    hidden, _ = model.text_model.model(batch["tokens"], attention_mask, positions, image_embeds, batch["image_mask"])
+    return hidden
 
 
 def split_microbatches(batch: dict[str, jax.Array], microbatches: int) -> dict[str, jax.Array]:
@@ -122,7 +130,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     - tower_angle: `loss.tower_angle_sum`, the tower's feature at the grasp's patch read as (cos, sin)
       of twice the angle; slot_angle: `loss.slot_angle_sum`, the same read of every image slot;
     - tower_offset / slot_offset: `loss.tower_offset_sum` and `loss.slot_offset_sum`, the same two
-      places read for where in its patch the grasp's centre lies.
+      places read for where in its patch the grasp's centre lies;
+    - answer_pointing: `loss.answer_pointing_sum`, the decoder's states at the loss positions asked
+      which image slot holds the target grasp's patch (the slots taught to be the patches).
     Each is added to the loss with its weight. With `angle_smoothing` > 0 (a width in angle bins) the
     gradient is that of circular smooth labels on the angle tokens (`loss.smoothed_angle_sum`;
     angle_ids: each bin's token id), while `loss` stays the plain cross-entropy, comparable with runs
@@ -142,7 +152,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
         features = image_features(model, batch)
         image_embeds = model.image_to_text_projection(features)
-        scores = logits(model, batch, image_embeds=image_embeds)
+        hidden = hidden_states(model, batch, image_embeds)
+        scores = model.text_model.logits(hidden)
         sums = token_sums(scores, batch["tokens"], batch["loss_mask"])
         objective = sums["loss_sum"]
         if angle_smoothing:
@@ -165,6 +176,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         if "slot_offset" in weights:
             sums["slot_offset_sum"] = slot_offset_sum(image_embeds, batch["grasp"], side,
                                                       grid_side(features.shape[1] - 1), batch["loss_mask"])
+        if "answer_pointing" in weights:
+            sums["answer_pointing_sum"] = answer_pointing_sum(hidden, batch["image_mask"], image_embeds.shape[1],
+                                                               batch["grasp"], side, batch["loss_mask"])
         for name, weight in weights.items():
             objective = objective + weight * sums[f"{name}_sum"]
         return objective, sums
