@@ -81,8 +81,13 @@ def error_summary(rows: list[dict], config: FormatConfig) -> dict:
     summary["by_scene"] = {scene: part_summary([r for r in rows if r.get("scene", "single") == scene], config)
                            for scene in scenes}
     if "multi" in summary["by_scene"]:
-        summary["by_scene"]["multi"]["same_quadrant"] = same_quadrant(
-            [r for r in rows if r.get("scene") == "multi"], config)
+        mosaic_rows = [r for r in rows if r.get("scene") == "multi"]
+        summary["by_scene"]["multi"]["same_quadrant"] = same_quadrant(mosaic_rows, config)
+        # the position kind names the quadrant in words; the others name the object: telling them apart
+        # says whether a model reads the instruction or the photo's content
+        kinds = sorted({r.get("kind", "") for r in mosaic_rows})
+        summary["by_scene"]["multi"]["same_quadrant_by_kind"] = {
+            kind: same_quadrant([r for r in mosaic_rows if r.get("kind", "") == kind], config) for kind in kinds}
     return summary
 
 
