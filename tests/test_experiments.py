@@ -307,7 +307,10 @@ def size_rows():
     return [row("p100", "photos", "image", [640, 660], [5.0, 7.0]), row("p300", "augmentations,photos", "image",
             [1900, 1950], [10.0, 14.0]), row("a8", "augmentations", "image", [3800, 3900], [20.0, 20.0]),
             row("p100", "photos", "object", [600, 610], [3.0, 5.0]), row("other", "", "image", [10], [99.0]),
-            {"kind": "no_learning", "arm": "image_centre", "protocol": "honest", "scheme": "image", "n_folds": 2}]
+            {"kind": "no_learning", "arm": "image_centre", "protocol": "honest", "scheme": "image", "n_folds": 2,
+             "tests_of": ["p100", "a8"], "mean": 4.0},
+            {"kind": "no_learning", "arm": "gt_mean_oracle", "protocol": "honest", "scheme": "image", "n_folds": 2,
+             "tests_of": ["p300"], "mean": 80.0}]
 
 
 def test_data_size_points_and_figure():
@@ -321,9 +324,27 @@ def test_data_size_points_and_figure():
     assert ax.get_xscale() == "log"
     plotted = {c.get_label(): (list(c.lines[0].get_xdata()), list(c.lines[0].get_ydata())) for c in ax.containers}
     assert plotted["IW, photos"] == ([650.0, 1925.0], [6.0, 12.0])
-    assert plotted["OW, photos"] == ([605.0], [4.0])
-    with pytest.raises(ValueError, match="nothing to plot"):
-        data_size.figure([])
+    assert plotted["OW, photos"] == ([605.0], [4.0])  # one point, on no other OW line: drawn
+    assert ax.get_title() == "honest protocol (mean +- std over 2 folds)"
+    # the references at the x of the arms whose test they scored, one line per series, labelled once
+    references = data_size.references(size_rows(), points)
+    assert [(r["predictor"], r["series"], r["training_examples"]) for r in references] == [
+        ("gt_mean_oracle", "augmentations", 1925.0), ("gt_mean_oracle", "photos", 1925.0),
+        ("image_centre", "augmentations", 3850.0), ("image_centre", "photos", 650.0)]
+    ax = data_size.figure(points, references).axes[0]
+    assert {line.get_label() for line in ax.get_lines() if not line.get_label().startswith("_")} == {
+        "IW, image centre", "IW, oracle (ground-truth mean)"}
+    assert [(list(line.get_xdata()), list(line.get_ydata())) for line in ax.get_lines()
+            if line.get_linestyle() == ":"] == [([3850.0], [4.0]), ([650.0], [4.0])]
+    assert {text.get_text() for text in ax.get_legend().get_texts()} == {
+        "IW, photos", "IW, augmentations", "OW, photos", "IW, image centre", "IW, oracle (ground-truth mean)"}
+
+
+def test_data_size_leaves_out_a_one_point_series_that_another_line_draws():
+    # p300 alone on the augmentations line (a8 dropped): its point is on the photos line, so that series
+    # would be a legend entry with nothing of its own; a one-point series on no other line stays
+    rows = [r for r in size_rows() if r["arm"] != "a8"]
+    assert set(data_size.lines(data_size.points(rows))) == {("honest", "photos", "image"), ("honest", "photos", "object")}
 
 
 def test_data_size_files(tmp_path):
