@@ -89,6 +89,7 @@ def model_config(size: str, vision: dict | None = None, text: dict | None = None
     model.magneto_init = True
     model.connector_dense_std = placeholder(float)  # None: KOSMOS-2 init (0.02); from scratch, try 1.0
     model.connector_grid_code = 0.0  # 0: KOSMOS-2's connector; > 0: centred tokens + a grid-cell code (from scratch)
+    model.connector_instruction = False  # True: the latent queries also read the prompt's words (from scratch)
     model.value_token_code = 0.0  # > 0: value tokens' embeddings start near each other's for near values (from scratch)
     model.angle_code_bins = 0.0  # > 0: the angle tokens' start codes are about this many bins alike; 0: 2 to 3 bins
     model.update(changes)

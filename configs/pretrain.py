@@ -21,6 +21,9 @@ Variants:
         no slot-angle loss (it asks every slot for the target's angle). Refuted on validation: its
         answers stop following the photo and its pointer picks a mosaic's named photo at chance
         (results/pretrain/README.md, "Slots that are the patches")
+  demo_stream_instruct  demo_stream whose connector's latent queries also read the instruction
+        (model.connector_instruction), so its pointing loss, which asks every query for the target grasp,
+        asks it for the object the instruction names
   tiny  transformers' test-sized model on 16 scenes of seed 1000, seconds a step (the tests use it)
   tiny_stream  tiny on chunks of 8 scenes made on the fly
 
@@ -45,7 +48,7 @@ def _sibling(name: str):
 
 kosmos_e = _sibling("kosmos_e")
 
-VARIANTS = ("demo", "demo_stream", "demo_stream_ground", "tiny", "tiny_stream")
+VARIANTS = ("demo", "demo_stream", "demo_stream_ground", "demo_stream_instruct", "tiny", "tiny_stream")
 STREAM_SEED = 10_000  # the first seed of scenes made on the fly (the *_stream variants): chunk k has seed 10,000 + k
 PRETRAIN_SEED = 1000  # the scenes' seed: no test or validation set of the project uses it
 
@@ -72,6 +75,8 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         base.data.synthetic_photos = 600
         base.data.build.update(folds=15, validation_fraction=0.07)  # 40 test photos, 39 validation
         base.data.stream.update(photos=64, seed=STREAM_SEED)
+    if variant == "demo_stream_instruct":
+        base.model.connector_instruction = True
     if variant == "demo_stream_ground":
         base.train.update(pointing_target="identity", slot_angle_loss=0.0, answer_pointing_loss=1.0)
     elif variant == "tiny_stream":

@@ -23,7 +23,8 @@ from flax import nnx
 from kosmos_jax.models.connector import cell_index, grid_side
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.train import data
-from kosmos_jax.train.step import BATCH_KEYS, hidden_states, image_features, rng_state
+from kosmos_jax.train.step import BATCH_KEYS, hidden_states, rng_state
+from kosmos_jax.train.step import slots as slots_of
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import Run, open_run
 
@@ -52,15 +53,15 @@ def hit_shares(pointed: np.ndarray, targets: np.ndarray, groups: list[str], side
 def pointer_of(run: Run, params):
     """A jitted (batch -> [B] pointed slot) of the run's model with `params`."""
     graphdef, _, rest = split_model(abstract_model(run.model_config))
-    slots = run.model_config.latent_query_num
+    count = run.model_config.latent_query_num
 
     @jax.jit
     def pointed(params, batch):
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, jax.random.key(0))), deterministic=True)
-        hidden = hidden_states(model, batch, model.image_to_text_projection(image_features(model, batch)))
+        hidden = hidden_states(model, batch, slots_of(model, batch))
         first = jnp.argmax(batch["loss_mask"][:, 1:], axis=1)  # predicts the first answer token
         query = jnp.take_along_axis(hidden, first[:, None, None], axis=1)[:, 0]
-        positions = jnp.argmax(batch["image_mask"], axis=1)[:, None] + jnp.arange(slots)[None]
+        positions = jnp.argmax(batch["image_mask"], axis=1)[:, None] + jnp.arange(count)[None]
         slot_states = jnp.take_along_axis(hidden, positions[..., None], axis=1)
         return jnp.argmax(jnp.einsum("bd,bsd->bs", query, slot_states), axis=-1)
 

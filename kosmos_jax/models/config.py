@@ -59,7 +59,7 @@ ATTENTION_KERNELS = ("einsum", "fused")
 # type transformers does not know, so it refuses the folder instead of computing other embeddings.
 EXTENDED_MODEL_TYPE = "kosmos_jax-kosmos-2"
 EXTENSIONS_KEY = "kosmos_jax"
-EXTENSION_FIELDS = ("connector_grid_code",)
+EXTENSION_FIELDS = ("connector_grid_code", "connector_instruction")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +79,11 @@ class Kosmos2Config:
     # scratch, a query's slot otherwise mixes the object's patch with what every patch shares, and the
     # decoder does not learn to read where the object is (results/demo/diagnosis.txt, section 6).
     connector_grid_code: float = 0.0
+    # The latent queries also read the instruction (not KOSMOS-2; for models trained from scratch): the
+    # mean embedding of the prompt's tokens after </image>, through a zero-initialised dense layer, is
+    # added to every query, so the connector can look for the object an instruction names (on a mosaic,
+    # one of four) where KOSMOS-2's queries are the same for every prompt.
+    connector_instruction: bool = False
     # Blocks of each tower stacked on a leading `layers` axis and applied under nnx.scan: compile
     # time and program size stop growing with depth. Changes parameter paths, not values. Like every
     # nnx transform, scan and remat refuse variables made outside the current jax trace: inside raw
@@ -136,9 +141,11 @@ class Kosmos2Config:
         return any(getattr(self, name) != getattr(Kosmos2Config, name) for name in EXTENSION_FIELDS)
 
     def to_extended_hf_dict(self) -> dict[str, Any]:
-        """to_hf_dict() with this project's model type and the fields it lacks (EXTENSION_FIELDS)."""
+        """to_hf_dict() with this project's model type and the fields it lacks (EXTENSION_FIELDS) that differ
+        from KOSMOS-2's (the others read back as their defaults)."""
         return {**self.to_hf_dict(), "model_type": EXTENDED_MODEL_TYPE,
-                EXTENSIONS_KEY: {name: getattr(self, name) for name in EXTENSION_FIELDS}}
+                EXTENSIONS_KEY: {name: getattr(self, name) for name in EXTENSION_FIELDS
+                                 if getattr(self, name) != getattr(Kosmos2Config, name)}}
 
     @classmethod
     def from_hf_dict(cls, data: dict[str, Any], source: str = "config.json", **runtime) -> "Kosmos2Config":

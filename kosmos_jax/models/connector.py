@@ -35,28 +35,52 @@ class ImageToTextProjection(nnx.Module):
                                       logical_axes=("latents", "embed"))
         self.x_attn = TextAttention(cfg.text, cfg.dtype, rngs, inner_layernorm=False)
         self.grid_code = cfg.connector_grid_code
+        self.instruction = (dense(d_text, d_text, ("embed", "heads"), rngs, std=0.0, dtype=cfg.dtype)
+                            if cfg.connector_instruction else None)
 
-    def queries_and_keys(self, features: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """features [B, 1 + patches, D_vision] -> latent queries [B, Q, D_text], keys [B, 1 + patches + Q, D_text]."""
+    def queries_and_keys(self, features: jax.Array, instruction: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+        """features [B, 1 + patches, D_vision] (and, for a connector that reads it, the instruction's bag
+        [B, D_text], `instruction_bag`) -> latent queries [B, Q, D_text], keys [B, 1 + patches + Q, D_text]."""
         tokens = self.dense(features)
         if self.grid_code:
             tokens = tokens - tokens[:, 1:].mean(axis=1, keepdims=True)
             tokens = tokens + self.grid_code * grid_code(features.shape[1] - 1, tokens.shape[-1]).astype(tokens.dtype)
         queries = jnp.broadcast_to(self.latent_query[...].astype(tokens.dtype), (tokens.shape[0], *self.latent_query.shape))
+        if self.instruction is not None:
+            if instruction is None:
+                raise ValueError("this connector reads the instruction (connector_instruction): give the prompt's "
+                                 "bag of words (Kosmos2.instruction_bag)")
+            queries = queries + self.instruction(instruction.astype(tokens.dtype))[:, None, :]
         return queries, jnp.concatenate([tokens, queries], axis=1)
 
-    def __call__(self, features: jax.Array) -> jax.Array:
+    def __call__(self, features: jax.Array, instruction: jax.Array | None = None) -> jax.Array:
         """features [B, 1 + patches, D_vision] -> image embeddings [B, latent_query_num, D_text] (float32)."""
-        queries, keys = self.queries_and_keys(features)
+        queries, keys = self.queries_and_keys(features, instruction)
         out, _ = self.x_attn(queries, mask=None, kv_input=keys)
         return constrain(out.astype(jnp.float32), ACT)
 
-    def pointing_log_probs(self, features: jax.Array) -> jax.Array:
+    def pointing_log_probs(self, features: jax.Array, instruction: jax.Array | None = None) -> jax.Array:
         """[B, heads, Q, 1 + patches + Q] float32: where each head of each latent query looks (log-softmax)."""
-        queries, keys = self.queries_and_keys(features)
+        queries, keys = self.queries_and_keys(features, instruction)
         attention = self.x_attn
         q, k = (split_heads(project(x), attention.num_heads) for project, x in ((attention.q_proj, queries), (attention.k_proj, keys)))
         return jax.nn.log_softmax(attention_scores(q, k), axis=-1)
+
+
+def instruction_bag(table: jax.Array, input_ids: jax.Array, attention_mask: jax.Array, image_mask: jax.Array,
+                    answer_mask: jax.Array | None = None) -> jax.Array:
+    """[B, D] the mean embedding (rows of `table` [V, D]) of each row's real tokens after its image slots
+    and their </image>, and before its first answer token where `answer_mask` [B, T] marks the answer
+    (a training sequence; a prompt holds none); zeros for a row without such tokens (no instruction)."""
+    positions = jnp.arange(input_ids.shape[1])[None, :]
+    last_slot = input_ids.shape[1] - 1 - jnp.argmax(image_mask[:, ::-1], axis=1)
+    chosen = (positions > last_slot[:, None] + 1) & attention_mask.astype(bool)
+    if answer_mask is not None:
+        first_answer = jnp.where(answer_mask.any(axis=1), jnp.argmax(answer_mask, axis=1), input_ids.shape[1])
+        chosen = chosen & (positions < first_answer[:, None])
+    rows = jnp.take(table, input_ids, axis=0).astype(jnp.float32)
+    total = jnp.sum(jnp.where(chosen[..., None], rows, 0.0), axis=1)
+    return total / jnp.maximum(jnp.sum(chosen, axis=1, keepdims=True), 1).astype(jnp.float32)
 
 
 def grid_side(patches: int) -> int:

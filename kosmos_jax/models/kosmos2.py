@@ -14,7 +14,7 @@ from flax import nnx
 from jax._src.interpreters import partial_eval  # private: see _cheap_tracer_errors
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.connector import ImageToTextProjection
+from kosmos_jax.models.connector import ImageToTextProjection, instruction_bag
 from kosmos_jax.models.decoder import TextForCausalLM, position_ids
 from kosmos_jax.models.vision import VisionModel
 
@@ -27,9 +27,17 @@ class Kosmos2(nnx.Module):
         self.vision_model = VisionModel(cfg.vision, cfg.dtype, rngs, **layout)
         self.image_to_text_projection = ImageToTextProjection(cfg, rngs)
 
-    def image_embeds(self, pixels: jax.Array) -> jax.Array:
-        """pixels [B, H, W, 3] -> [B, latent_query_num, D_text]."""
-        return self.image_to_text_projection(self.vision_model(pixels))
+    def image_embeds(self, pixels: jax.Array, instruction: jax.Array | None = None) -> jax.Array:
+        """pixels [B, H, W, 3] -> [B, latent_query_num, D_text]; `instruction` the prompt's bag of words
+        (`instruction_bag`), read by a connector with connector_instruction only."""
+        return self.image_to_text_projection(self.vision_model(pixels), instruction)
+
+    def instruction_bag(self, input_ids, attention_mask, image_mask, answer_mask=None) -> jax.Array | None:
+        """What a connector with connector_instruction reads (connector.instruction_bag); None for the others."""
+        if not self.config.connector_instruction:
+            return None
+        table = self.text_model.model.embed_tokens.embedding[...]
+        return instruction_bag(table, input_ids, attention_mask, image_mask, answer_mask)
 
     def __call__(self, input_ids, attention_mask, image_mask, pixels=None, image_embeds=None):
         """Logits [B, T, V] (float32) for a whole sequence, no cache.
@@ -42,6 +50,9 @@ class Kosmos2(nnx.Module):
         if image_embeds is None:
             if pixels is None:
                 raise ValueError("give pixels or image_embeds")
+            if self.config.connector_instruction:
+                raise ValueError("a connector that reads the instruction needs to know where the answer starts: "
+                                 "give image_embeds (image_embeds(pixels, instruction_bag(...)))")
             image_embeds = self.image_embeds(pixels)
         positions = position_ids(attention_mask, self.config.text.pad_token_id)
         hidden, _ = self.text_model.model(input_ids, attention_mask, positions, image_embeds, image_mask)

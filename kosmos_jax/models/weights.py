@@ -22,7 +22,7 @@ from flax import nnx
 from safetensors import safe_open
 from safetensors.numpy import save_file
 
-from kosmos_jax.models.config import Kosmos2Config
+from kosmos_jax.models.config import EXTENSION_FIELDS, Kosmos2Config
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model
 from kosmos_jax.models.layers import LAYERS
 
@@ -214,9 +214,10 @@ def save_pretrained(model: Kosmos2, folder: str | pathlib.Path, max_shard_bytes:
     config.json then names this project's model type (config.EXTENDED_MODEL_TYPE), which transformers
     refuses and read_config reads back. A model without such a field is written alike either way."""
     if model.config.needs_extensions and not extensions:
-        raise ValueError(f"this model's connector adds a grid code (connector_grid_code="
-                         f"{model.config.connector_grid_code}), which transformers' KOSMOS-2 lacks: its export would "
-                         "compute other image embeddings; save_pretrained(..., extensions=True) writes a folder "
+        extended = {name: getattr(model.config, name) for name in EXTENSION_FIELDS}
+        raise ValueError(f"this model's connector adds a grid code or reads the instruction ({extended}), which "
+                         "transformers' KOSMOS-2 lacks: its export would compute other image embeddings; "
+                         "save_pretrained(..., extensions=True) writes a folder "
                          "only this project reads")
     config = model.config.to_extended_hf_dict() if model.config.needs_extensions else model.config.to_hf_dict()
     folder = pathlib.Path(folder)

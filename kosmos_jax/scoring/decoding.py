@@ -38,7 +38,7 @@ def fixed_streams(rest: nnx.State) -> nnx.State:
 
 def _answers(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens, picker):
     model = nnx.view(nnx.merge(graphdef, params, fixed_streams(rest)), deterministic=True)
-    embeds = model.image_embeds(pixels(images, model.config.vision.image_size))
+    embeds = model.image_embeds(pixels(images, model.config.vision.image_size), model.instruction_bag(ids, mask, image_mask))
     return decode.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint,
                            picker=picker)
 

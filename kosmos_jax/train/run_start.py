@@ -17,6 +17,7 @@ import pathlib
 from flax import nnx
 
 from kosmos_jax.models import weights
+from kosmos_jax.models.config import EXTENSION_FIELDS
 from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE, RunError
 from kosmos_jax.workdir.pretrained import FORMAT_FILE, read_description
 
@@ -80,7 +81,7 @@ def run_params(config, model_config, mesh):
 def check_same_model(loaded_config, model_config, init_from) -> None:
     """ValueError naming the difference when a loaded model is not `model_config`."""
     if loaded_config.to_hf_dict() != model_config.to_hf_dict() or \
-            loaded_config.connector_grid_code != model_config.connector_grid_code:
+            any(getattr(loaded_config, name) != getattr(model_config, name) for name in EXTENSION_FIELDS):
         raise ValueError(f"config.init_from={init_from} holds another model than this config's: "
                          f"{_difference(loaded_config, model_config)}; give this config the model of that run")
 
@@ -101,8 +102,8 @@ def start_params(config, model_config, mesh):
 
 def _difference(stored, wanted) -> str:
     stored_dict, wanted_dict = _flat(stored.to_hf_dict()), _flat(wanted.to_hf_dict())
-    stored_dict["connector_grid_code"], wanted_dict["connector_grid_code"] = (stored.connector_grid_code,
-                                                                              wanted.connector_grid_code)
+    for name in EXTENSION_FIELDS:
+        stored_dict[name], wanted_dict[name] = getattr(stored, name), getattr(wanted, name)
     differ = [f"{key} {stored_dict.get(key)} there, {wanted_dict.get(key)} here"
               for key in sorted(set(stored_dict) | set(wanted_dict)) if stored_dict.get(key) != wanted_dict.get(key)]
     return "; ".join(differ[:4])

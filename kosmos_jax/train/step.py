@@ -81,19 +81,35 @@ def image_features(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array:
     return model.vision_model(pixels(batch["image"], model.config.vision.image_size))
 
 
+def attention_mask(batch: dict[str, jax.Array]) -> jax.Array:
+    return jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
+
+
+def instruction(model: Kosmos2, batch: dict[str, jax.Array]) -> jax.Array | None:
+    """The batch's instructions as a connector that reads them takes them (None for KOSMOS-2's)."""
+    return model.instruction_bag(batch["tokens"], attention_mask(batch), batch["image_mask"], batch["loss_mask"])
+
+
+def slots(model: Kosmos2, batch: dict[str, jax.Array], features: jax.Array | None = None) -> jax.Array:
+    """The connector's image slots [B, Q, D] for a batch (from the tower's `features` when given)."""
+    if features is None:
+        features = image_features(model, batch)
+    return model.image_to_text_projection(features, instruction(model, batch))
+
+
 def logits(model: Kosmos2, batch: dict[str, jax.Array], image_embeds: jax.Array | None = None) -> jax.Array:
     """The model's logits [B, L, V] for a batch of stored examples (images as the processor prepares
     them), from the connector's `image_embeds` when the caller has them already."""
     if image_embeds is None:
-        image_embeds = model.image_to_text_projection(image_features(model, batch))
+        image_embeds = slots(model, batch)
     return model.text_model.logits(hidden_states(model, batch, image_embeds))
 
 
 def hidden_states(model: Kosmos2, batch: dict[str, jax.Array], image_embeds: jax.Array) -> jax.Array:
     """The decoder's final hidden states [B, L, D] (float32) for a batch, from the connector's slots."""
-    attention_mask = jnp.arange(batch["tokens"].shape[1])[None, :] < batch["length"][:, None]
-    positions = position_ids(attention_mask, model.config.text.pad_token_id)
-    hidden, _ = model.text_model.model(batch["tokens"], attention_mask, positions, image_embeds, batch["image_mask"])
+    mask = attention_mask(batch)
+    positions = position_ids(mask, model.config.text.pad_token_id)
+    hidden, _ = model.text_model.model(batch["tokens"], mask, positions, image_embeds, batch["image_mask"])
     return hidden
 
 
@@ -151,7 +167,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     def loss_sum(params, batch, key):
         model = nnx.view(nnx.merge(graphdef, params, rng_state(rest, key)), deterministic=False)
         features = image_features(model, batch)
-        image_embeds = model.image_to_text_projection(features)
+        image_embeds = slots(model, batch, features)
         hidden = hidden_states(model, batch, image_embeds)
         scores = model.text_model.logits(hidden)
         sums = token_sums(scores, batch["tokens"], batch["loss_mask"])
@@ -160,7 +176,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             objective = smoothed_angle_sum(scores, batch["tokens"], batch["loss_mask"], angle_ids, kernel)
         side = batch["image"].shape[1]
         if "pointing" in weights:
-            log_probs = model.image_to_text_projection.pointing_log_probs(features)
+            log_probs = model.image_to_text_projection.pointing_log_probs(features, instruction(model, batch))
             sums["pointing_sum"] = pointing_sum(log_probs, batch["grasp"], side, batch["loss_mask"],
                                                  auxiliary.pointing_queries, auxiliary.pointing_target)
         if "patch_angle" in weights:

@@ -114,7 +114,9 @@ def prepare_data(data_config) -> data_lib.Dataset:
 def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
     return {"config": json.loads(config.to_json_best_effort()), "data_identity": dataset.identity,
             "dataset_dir": str(dataset.dir), "model": model_cfg.to_hf_dict(),
-            "connector": {"grid_code": model_cfg.connector_grid_code},  # changes the forward pass; not in to_hf_dict
+            # they change the forward pass; not in to_hf_dict; a field at its default is left out, as older runs wrote it
+            "connector": {"grid_code": model_cfg.connector_grid_code,
+                          **({"instruction": True} if model_cfg.connector_instruction else {})},
             "runtime": {"compute_dtype": model_cfg.compute_dtype},
             "rng": {"seed": config.train.seed, "dropout": "fold_in(fold_in(key(seed), stream), step), each row's mask by its example_index"}}
 

@@ -24,4 +24,5 @@ def model_config(model: ml_collections.ConfigDict, vocab_size: int) -> model_con
                         compute_dtype=model.compute_dtype, magneto_init=model.magneto_init, remat=model.remat,
                         scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"),
                         connector_grid_code=model.get("connector_grid_code", 0.0),
+                        connector_instruction=model.get("connector_instruction", False),
                         attention=model.get("attention", "einsum"))
