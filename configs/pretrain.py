@@ -23,7 +23,9 @@ Variants:
         (results/pretrain/README.md, "Slots that are the patches")
   demo_stream_instruct  demo_stream whose connector's latent queries also read the instruction
         (model.connector_instruction), so its pointing loss, which asks every query for the target grasp,
-        asks it for the object the instruction names
+        asks it for the object the instruction names. On validation: 91% of mosaic answers in the quadrant
+        that position words name (43% without), object words still at chance at 1,500 steps
+        (results/pretrain/README.md, "A connector that reads the instruction")
   tiny  transformers' test-sized model on 16 scenes of seed 1000, seconds a step (the tests use it)
   tiny_stream  tiny on chunks of 8 scenes made on the fly
 
