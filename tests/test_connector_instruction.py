@@ -35,6 +35,7 @@ def _features(batch=2):
     return jax.random.normal(jax.random.key(0), (batch, 1 + GRID * GRID, TINY.vision.hidden_size))
 
 
+@pytest.mark.slow  # builds the tiny model three times: kept out of the fast suite, at 14 min 38 s on 2 cores
 def test_the_instruction_starts_with_no_effect_and_a_connector_that_reads_it_refuses_to_go_without():
     model = kosmos2.build(READS)
     connector = model.image_to_text_projection
