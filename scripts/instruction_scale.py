@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
+from kosmos_jax.models.connector import instruction_mean
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.train import data, step
 from kosmos_jax.workdir.run import open_run
@@ -32,19 +33,11 @@ def main() -> None:
     batch = next(data.eval_batches(run.split("validation"), 32, 0, 1))
     batch = {key: jnp.asarray(batch[key]) for key in step.BATCH_KEYS}
     scaled = step.instruction(model, batch)
-    # the unscaled mean of the same tokens' embeddings, as connector.instruction_bag chooses them
-    table = model.text_model.model.embed_tokens.embedding[...]
-    ids = batch["tokens"]
-    mask = step.attention_mask(batch)
-    rows = jnp.take(table, ids, axis=0)
-    positions = jnp.arange(ids.shape[1])[None, :]
-    last_slot = ids.shape[1] - 1 - jnp.argmax(batch["image_mask"][:, ::-1], axis=1)
-    first_answer = jnp.argmax(batch["loss_mask"], axis=1)
-    chosen = (positions > last_slot[:, None] + 1) & mask & (positions < first_answer[:, None])
-    unscaled = jnp.sum(jnp.where(chosen[..., None], rows, 0.0), 1) / jnp.maximum(chosen.sum(1, keepdims=True), 1)
+    unscaled = instruction_mean(model.text_model.model.embed_tokens.embedding[...], batch["tokens"],
+                                step.attention_mask(batch), batch["image_mask"], batch["loss_mask"])
     connector = model.image_to_text_projection
     norm = lambda x: round(float(jnp.linalg.norm(x, axis=-1).mean()), 4)
-    print(json.dumps({"workdir": args.workdir, "step": checkpoint, "examples": int(ids.shape[0]),
+    print(json.dumps({"workdir": args.workdir, "step": checkpoint, "examples": int(batch["tokens"].shape[0]),
                       "bag_norm": {"unit_rms": norm(scaled), "unscaled": norm(unscaled)},
                       "added_to_queries_norm": {"unit_rms": norm(connector.instruction(scaled)),
                                                 "unscaled": norm(connector.instruction(unscaled))},

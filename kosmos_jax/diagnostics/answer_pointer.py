@@ -22,6 +22,7 @@ from flax import nnx
 
 from kosmos_jax.models.connector import cell_index, grid_side
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
+from kosmos_jax.train.loss import image_slot_states
 from kosmos_jax.train import data
 from kosmos_jax.train.step import BATCH_KEYS, hidden_states, rng_state
 from kosmos_jax.train.step import slots as slots_of
@@ -61,8 +62,7 @@ def pointer_of(run: Run, params):
         hidden = hidden_states(model, batch, slots_of(model, batch))
         first = jnp.argmax(batch["loss_mask"][:, 1:], axis=1)  # predicts the first answer token
         query = jnp.take_along_axis(hidden, first[:, None, None], axis=1)[:, 0]
-        positions = jnp.argmax(batch["image_mask"], axis=1)[:, None] + jnp.arange(count)[None]
-        slot_states = jnp.take_along_axis(hidden, positions[..., None], axis=1)
+        slot_states = image_slot_states(hidden, batch["image_mask"], count)
         return jnp.argmax(jnp.einsum("bd,bsd->bs", query, slot_states), axis=-1)
 
     return lambda batch: np.asarray(pointed(params, {key: jnp.asarray(batch[key]) for key in BATCH_KEYS}))

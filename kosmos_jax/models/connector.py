@@ -67,13 +67,11 @@ class ImageToTextProjection(nnx.Module):
         return jax.nn.log_softmax(attention_scores(q, k), axis=-1)
 
 
-def instruction_bag(table: jax.Array, input_ids: jax.Array, attention_mask: jax.Array, image_mask: jax.Array,
-                    answer_mask: jax.Array | None = None) -> jax.Array:
+def instruction_mean(table: jax.Array, input_ids: jax.Array, attention_mask: jax.Array, image_mask: jax.Array,
+                     answer_mask: jax.Array | None = None) -> jax.Array:
     """[B, D] the mean embedding (rows of `table` [V, D]) of each row's real tokens after its image slots
     and their </image>, and before its first answer token where `answer_mask` [B, T] marks the answer
-    (a training sequence; a prompt holds none), scaled to a root mean square of 1; zeros for a row
-    without such tokens (no instruction). Unscaled, the mean of embeddings started at std 0.02 moved
-    the queries (norm ~11) by about 4% after 1,500 steps (results/pretrain/README.md)."""
+    (a training sequence; a prompt holds none); zeros for a row without such tokens (no instruction)."""
     positions = jnp.arange(input_ids.shape[1])[None, :]
     last_slot = input_ids.shape[1] - 1 - jnp.argmax(image_mask[:, ::-1], axis=1)
     chosen = (positions > last_slot[:, None] + 1) & attention_mask.astype(bool)
@@ -81,7 +79,15 @@ def instruction_bag(table: jax.Array, input_ids: jax.Array, attention_mask: jax.
         first_answer = jnp.where(answer_mask.any(axis=1), jnp.argmax(answer_mask, axis=1), input_ids.shape[1])
         chosen = chosen & (positions < first_answer[:, None])
     rows = jnp.take(table, input_ids, axis=0).astype(jnp.float32)
-    mean = jnp.sum(jnp.where(chosen[..., None], rows, 0.0), axis=1) / jnp.maximum(jnp.sum(chosen, axis=1, keepdims=True), 1)
+    return jnp.sum(jnp.where(chosen[..., None], rows, 0.0), axis=1) / jnp.maximum(jnp.sum(chosen, axis=1, keepdims=True), 1)
+
+
+def instruction_bag(table: jax.Array, input_ids: jax.Array, attention_mask: jax.Array, image_mask: jax.Array,
+                    answer_mask: jax.Array | None = None) -> jax.Array:
+    """`instruction_mean` scaled to a root mean square of 1 (zeros stay zeros): what the connector reads.
+    Unscaled, the mean of embeddings started at std 0.02 moved the queries (norm ~11) by about 4% after
+    1,500 steps (results/pretrain/README.md)."""
+    mean = instruction_mean(table, input_ids, attention_mask, image_mask, answer_mask)
     return mean * jax.lax.rsqrt(jnp.mean(mean ** 2, axis=-1, keepdims=True) + 1e-12)
 
 

@@ -120,6 +120,12 @@ def identity_pointing_sum(log_probs: jax.Array, side: int, loss_mask: jax.Array)
     return jnp.sum(cross_entropy * jnp.sum(loss_mask[:, 1:], axis=-1))
 
 
+def image_slot_states(hidden: jax.Array, image_mask: jax.Array, slots: int) -> jax.Array:
+    """hidden [B, T, D] -> [B, slots, D]: the states at the image slots, which image_mask [B, T] marks contiguously."""
+    positions = jnp.argmax(image_mask, axis=1)[:, None] + jnp.arange(slots)[None, :]
+    return jnp.take_along_axis(hidden, positions[..., None], axis=1)
+
+
 def answer_pointing_sum(hidden: jax.Array, image_mask: jax.Array, slots: int, grasp: jax.Array, image_side: int,
                         loss_mask: jax.Array) -> jax.Array:
     """The answer-pointing loss as a sum: at every position that predicts a loss token, the decoder's
@@ -130,8 +136,7 @@ def answer_pointing_sum(hidden: jax.Array, image_mask: jax.Array, slots: int, gr
     four). The slots must be the patches in row-major order (pointing_target "identity"); image_mask
     [B, T] marks them, contiguous. Each counted position adds its cross-entropy, as the text loss does;
     an example without a target grasp adds nothing."""
-    positions = jnp.argmax(image_mask, axis=1)[:, None] + jnp.arange(slots)[None, :]
-    slot_states = jnp.take_along_axis(hidden, positions[..., None], axis=1)  # [B, slots, D]
+    slot_states = image_slot_states(hidden, image_mask, slots)
     scores = jnp.einsum("btd,bsd->bts", hidden[:, :-1], slot_states) / jnp.sqrt(jnp.float32(hidden.shape[-1]))
     target = cell_index(jnp.nan_to_num(grasp[:, :2]) / image_side, grid_side(slots))
     nll = -jnp.take_along_axis(jax.nn.log_softmax(scores, axis=-1), target[:, None, None], axis=-1)[..., 0]
