@@ -99,6 +99,18 @@ def test_stream_seeds_must_lie_above_the_test_scenes_seed():
     assert trainer.stream_settings(data) is None
 
 
+def test_the_stream_may_ask_for_other_kinds_than_the_build():
+    data = ml_collections.ConfigDict(dict(source="synthetic", synthetic_seed=1000,
+                                          stream=dict(photos=8, seed=1001, kinds="")))
+    assert "kinds" not in trainer.stream_settings(data)  # the build's kinds, and the description of older runs
+    data.stream.kinds = "non, multi-colour,multi"
+    assert trainer.stream_settings(data)["kinds"] == ["non", "multi-colour", "multi-name", "multi-shape",
+                                                      "multi-purpose", "multi-position", "multi-strategy"]
+    data.stream.kinds = "non,multi-colours"
+    with pytest.raises(ValueError, match="colours"):
+        trainer.stream_settings(data)
+
+
 @pytest.mark.slow  # three tiny pretraining runs in subprocesses, about two minutes on 2 cores
 def test_a_stream_run_killed_with_9_resumes_with_the_losses_of_one_never_stopped(tmp_path):
     steps = 6

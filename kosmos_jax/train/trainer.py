@@ -14,6 +14,7 @@ below) or "baseline" (GR-ConvNet / GG-CNN2, train/baseline_task.py, configs/base
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pathlib
 import shutil
@@ -25,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from kosmos_jax.dataset import samples as sample_stage
 from kosmos_jax.models import value_embeddings, weights
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import build, split_model
@@ -149,9 +151,10 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
 
 
 def stream_settings(data_config) -> dict | None:
-    """{"photos", "seed"} of config.data.stream when training reads scenes made on the fly, else None.
-    The stream's seeds must all lie above the built dataset's scenes' seed, so that no test photo is
-    ever a training one."""
+    """{"photos", "seed"[, "kinds"]} of config.data.stream when training reads scenes made on the fly,
+    else None. "kinds" (resolved, e.g. ["non", "multi-name", ...]) is there only when config.data.stream.kinds
+    gives the stream other instruction kinds than the build's. The stream's seeds must all lie above the
+    built dataset's scenes' seed, so that no test photo is ever a training one."""
     stream = data_config.get("stream")
     if not stream or not stream.get("photos"):
         return None
@@ -159,7 +162,12 @@ def stream_settings(data_config) -> dict | None:
         raise ValueError(f"config.data.stream.seed={stream.seed} must exceed config.data.synthetic_seed="
                          f"{data_config.synthetic_seed}: the stream's chunks take seeds seed, seed + 1, ..., and the "
                          "test split's scenes must not be among them")
-    return {"photos": int(stream.photos), "seed": int(stream.seed)}
+    settings = {"photos": int(stream.photos), "seed": int(stream.seed)}
+    kinds = stream.get("kinds") or ""
+    if kinds:  # left out at the default, as runs made before the option wrote it
+        single, multi = sample_stage.parse_kinds(kinds.split(","))
+        settings["kinds"] = list(single) + [sample_stage.MULTI_PREFIX + k for k in multi]
+    return settings
 
 
 def kosmos_task(config, mesh, tx, schedule) -> Task:
@@ -175,7 +183,10 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     stream = stream_settings(config.data)
     if stream:
         description["data_stream"] = stream
-        batches = scene_stream.SceneStream(data_lib.build_config(config.data), tokenizer, **stream,
+        stream_build = data_lib.build_config(config.data)
+        if "kinds" in stream:
+            stream_build = dataclasses.replace(stream_build, kinds=tuple(stream["kinds"]))
+        batches = scene_stream.SceneStream(stream_build, tokenizer, photos=stream["photos"], seed=stream["seed"],
                                            global_batch=config.train.batch_size, process_index=jax.process_index(),
                                            process_count=jax.process_count())
         describe = batches.describe
