@@ -96,7 +96,7 @@ def synthetic_batch(rng, batch):
 
 
 def cornell_batch(batch):
-    from kosmos_jax.data.cornell import load_photos
+    from kosmos_jax.sources.cornell import load_photos
 
     photos = [p for p in load_photos(CORNELL) if p.rgb.shape == (480, 640, 3) and len(p.grasps)]
     chosen = (photos * (batch // len(photos) + 1))[:batch]

@@ -35,7 +35,7 @@ from kosmos_jax.baselines.layers import input_channels
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.model_answers import Decoder
 from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text import tokens as special
 from kosmos_jax.text.formatter import FormatConfig

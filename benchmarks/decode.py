@@ -25,7 +25,7 @@ from kosmos_jax.instruct.kinds import TEMPLATES
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.model_answers import Decoder
 from kosmos_jax.scoring.prompts import left_padded
 from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text import layout

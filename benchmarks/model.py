@@ -25,7 +25,7 @@ from flax import nnx
 
 from timing import best_time, matmul_peak  # benchmarks/timing.py, beside this script
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models import decode
+from kosmos_jax.models import generation
 from kosmos_jax.models.flops import train_flops, xla_flops
 from kosmos_jax.models.kosmos2 import build
 
@@ -75,7 +75,7 @@ def decoding_speed(cfg, batch, prompt, new_tokens) -> dict:
     embeds = jax.jit(lambda p: nnx.merge(*nnx.split(model)).image_embeds(p))(pixels)
     out = {}
     for use_cache in (True, False):
-        seconds = best_time(lambda: decode.generate(model, ids, mask, image_mask, embeds,
+        seconds = best_time(lambda: generation.generate(model, ids, mask, image_mask, embeds,
                                                     max_new_tokens=new_tokens, use_cache=use_cache), repeats=2)
         out["cached" if use_cache else "uncached"] = round(batch * new_tokens / seconds, 1)
     return {"batch": batch, "prompt_tokens": prompt, "new_tokens": new_tokens,

@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.dataset import build
 from kosmos_jax.dataset import pipeline, tfds_builders
 

@@ -31,8 +31,8 @@ import time
 from absl import app, logging
 from ml_collections import config_flags
 
-from kosmos_jax.data import cornell
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources import cornell
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.dataset import views
 from kosmos_jax.evaluate.run_scores import evaluate, write
 from kosmos_jax.experiments import no_learning, runner, spec

@@ -16,7 +16,7 @@ from flax import nnx
 
 from kosmos_jax.models.connector import instruction_mean
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
-from kosmos_jax.train import data, step
+from kosmos_jax.train import batches, step
 from kosmos_jax.workdir.run import open_run
 
 
@@ -30,7 +30,7 @@ def main() -> None:
     checkpoint, params = run.params(None)
     graphdef, _, rest = split_model(abstract_model(run.model_config))
     model = nnx.view(nnx.merge(graphdef, params, step.rng_state(rest, jax.random.key(0))), deterministic=True)
-    batch = next(data.eval_batches(run.split("validation"), 32, 0, 1))
+    batch = next(batches.eval_batches(run.split("validation"), 32, 0, 1))
     batch = {key: jnp.asarray(batch[key]) for key in step.BATCH_KEYS}
     scaled = step.instruction(model, batch)
     unscaled = instruction_mean(model.text_model.model.embed_tokens.embedding[...], batch["tokens"],

@@ -55,7 +55,7 @@ def synthetic_15(tmp_path_factory) -> pathlib.Path:
     once a session for the modules that build datasets from them."""
     import shutil
 
-    from kosmos_jax.data.synthetic import scenes
+    from kosmos_jax.sources.synthetic import scenes
     root = tmp_path_factory.mktemp("synthetic_15")
     shutil.rmtree(root)
     scenes.write_dataset(root, photos=15, seed=0)

@@ -8,7 +8,7 @@ import pytest
 
 from kosmos_jax.annotators import kosmos_e, rules, synthetic
 from kosmos_jax.annotators.base import MissingWordsError, ObjectWords, colour_terms, require, terms
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources.photo import Photo
 from kosmos_jax.instruct.sample import View
 from kosmos_jax.instruct.single import single_samples
 
@@ -75,7 +75,7 @@ def test_real_kosmos_e_file_words(kosmos_e_annotations):
 
 
 def test_synthetic_metadata_words(tmp_path):
-    from kosmos_jax.data.synthetic import scenes as synthetic_data
+    from kosmos_jax.sources.synthetic import scenes as synthetic_data
 
     synthetic_data.write_dataset(tmp_path / "syn", 3, 5)
     meta = json.loads((tmp_path / "syn" / "synthetic_meta.json").read_text())["photos"]

@@ -23,8 +23,8 @@ from kosmos_jax.baselines.layers import MODES, GraspMaps, input_channels
 from kosmos_jax.baselines.predict import gaussian_blur, predict_grasps
 from kosmos_jax.baselines.targets import WIDTH_SCALE, grasp_maps
 from kosmos_jax.baselines.transpose import ConvTranspose
-from kosmos_jax.data import cornell, splits
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources import cornell, splits
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.dataset import views as kosmos_views
 from kosmos_jax.metrics import grasp_success
 from kosmos_jax.models.sharding import logical_specs

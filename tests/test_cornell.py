@@ -12,7 +12,7 @@ import types
 import numpy as np
 import pytest
 
-from kosmos_jax.data import cornell
+from kosmos_jax.sources import cornell
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -250,7 +250,7 @@ def test_round_trip_of_a_written_file(tmp_path):
 
 def test_cli_prints_json_summary(cornell_root, kosmos_e_annotations):
     result = subprocess.run(
-        [sys.executable, "-m", "kosmos_jax.data.cornell", str(cornell_root),
+        [sys.executable, "-m", "kosmos_jax.sources.cornell", str(cornell_root),
          "--kosmos-e", str(kosmos_e_annotations)],
         capture_output=True, text=True, cwd=REPO, timeout=120, check=True)
     summary = json.loads(result.stdout)
@@ -272,7 +272,7 @@ def test_cli_prints_json_summary(cornell_root, kosmos_e_annotations):
 
 def test_cli_reports_broken_file(tmp_path):
     (tmp_path / "pcd0001cpos.txt").write_text("1 2\n3 x\n")
-    result = subprocess.run([sys.executable, "-m", "kosmos_jax.data.cornell", str(tmp_path), "--no-images"],
+    result = subprocess.run([sys.executable, "-m", "kosmos_jax.sources.cornell", str(tmp_path), "--no-images"],
                             capture_output=True, text=True, cwd=REPO, timeout=120)
     assert result.returncode == 1
     assert "pcd0001cpos.txt, line 2" in result.stderr

@@ -1,4 +1,4 @@
-"""Cornell point clouds (pcdNNNN.txt) -> GG-CNN depth images (pcdNNNNd.tiff): kosmos_jax.data.cornell_depth."""
+"""Cornell point clouds (pcdNNNN.txt) -> GG-CNN depth images (pcdNNNNd.tiff): kosmos_jax.sources.cornell_depth."""
 
 import pathlib
 import subprocess
@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from kosmos_jax.data import cornell, cornell_depth
+from kosmos_jax.sources import cornell, cornell_depth
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 HEIGHT, WIDTH = cornell_depth.SHAPE
@@ -123,7 +123,7 @@ def test_command_writes_tiffs_the_cornell_reader_loads(scene, tmp_path):
     nested = write_pcd(tmp_path / "02" / "more" / "pcd0200.txt", point_lines(depth)[:1000])
     cv2.imwrite(str(tmp_path / "01" / "pcd0100r.png"), np.zeros((HEIGHT, WIDTH, 3), np.uint8))
     cornell.write_rectangles(tmp_path / "01" / "pcd0100cpos.txt", np.array([[320, 240, 40, 20, 0.3]]))
-    command = [sys.executable, "-m", "kosmos_jax.data.cornell_depth", str(tmp_path)]
+    command = [sys.executable, "-m", "kosmos_jax.sources.cornell_depth", str(tmp_path)]
 
     run = subprocess.run(command, capture_output=True, text=True, cwd=REPO)
     assert run.returncode == 0, run.stderr
@@ -170,7 +170,7 @@ def test_broken_point_cloud_is_one_clear_error(case, tmp_path, capsys):
 def test_empty_folder_is_an_error(tmp_path):
     (tmp_path / "01").mkdir()
     (tmp_path / "01" / "pcd0100cpos.txt").write_text("")  # rectangles, not a point cloud
-    run = subprocess.run([sys.executable, "-m", "kosmos_jax.data.cornell_depth", str(tmp_path)],
+    run = subprocess.run([sys.executable, "-m", "kosmos_jax.sources.cornell_depth", str(tmp_path)],
                          capture_output=True, text=True, cwd=REPO)
     assert run.returncode == 1 and run.stdout == ""
     assert run.stderr.splitlines() == [f"error: {tmp_path}: no pcdNNNN.txt point clouds under it"]

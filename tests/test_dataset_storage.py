@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.annotators.base import MissingWordsError, ObjectWords
-from kosmos_jax.data import cornell
+from kosmos_jax.sources import cornell
 from kosmos_jax.instruct.sample import View
 from kosmos_jax.dataset import pipeline
 from kosmos_jax.dataset.images import digest, png_bytes

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import geometry
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.evaluate.__main__ import main
 from kosmos_jax.grasp_text import ParsedGrasp, format_angle
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
@@ -377,10 +377,10 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     from flax import nnx
 
     from kosmos_jax.diagnostics import vision_probe as vp
-    from kosmos_jax.train import data as data_lib
+    from kosmos_jax.train import batches as batches_lib
 
     run = open_run(workdir)
-    batch = next(data_lib.eval_batches(run.split("train"), 8, 0, 1, 1))
+    batch = next(batches_lib.eval_batches(run.split("train"), 8, 0, 1, 1))
     images, centres = jnp.asarray(batch["image"]), jnp.asarray(batch["grasp"][:, :2] / batch["image"].shape[1])
     for readout, lr in (("patches", 1e-4), ("cls", 1e-3), ("cells", 1e-3)):  # cls and cells need the larger steps
         probe = vp.CentreProbe(run.model_config.vision, readout, nnx.Rngs(0))
@@ -393,7 +393,7 @@ def test_the_vision_probe_fits_a_batch_and_scores_every_test_example(workdir, ca
     assert all(np.isfinite(result["mae_px"])) and all(0 <= e < 224 for e in result["mean_guess_mae_px"])
     assert 0 <= result["within_20px"] <= 1 and 0 <= result["mean_guess_within_20px"] <= 1
     cells = vp.vision_probe(workdir, steps=2, batch_size=8, readout="cells")
-    side = next(data_lib.eval_batches(run.split("test"), 8, 0, 1, 1))["image"].shape[1]
+    side = next(batches_lib.eval_batches(run.split("test"), 8, 0, 1, 1))["image"].shape[1]
     assert all(0 < e < side for e in cells["mae_px"])
     assert np.all(np.asarray(result["centres_px"]["test"]["std"]) >= 0)
     assert vp.main([f"--workdir={workdir}", "--steps=0"]) == 1 and "steps=0" in capsys.readouterr().err

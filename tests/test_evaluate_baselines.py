@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.baselines.inputs import ViewArrays
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.evaluate.__main__ import main
 from kosmos_jax.evaluate.run_scores import evaluate
 from kosmos_jax.scoring.view_scores import view_results

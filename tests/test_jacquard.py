@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import geometry
-from kosmos_jax.data import jacquard
+from kosmos_jax.sources import jacquard
 
 
 def chord_midpoint_offset(mask, centre, direction):

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from kosmos_jax.data import cornell, kosmos_e_annotations as ke
+from kosmos_jax.sources import cornell, kosmos_e_annotations as ke
 
 
 @pytest.fixture

@@ -13,12 +13,12 @@ ROOT = pathlib.Path(kosmos_jax.__file__).parent
 LAYERS = (
     ("geometry", "grasp_text", "publish", "jax_platforms"),
     ("metrics",),
-    ("data",),
+    ("sources",),  # readers of the photo datasets (Cornell, Jacquard, synthetic scenes) and their splits
     ("augment",),
     ("annotators",),
     ("instruct",),
     ("text",),
-    ("dataset",),
+    ("dataset",),  # INSTRUCT-GRASP built from a source: views, samples, text, tokens, shards
     ("models", "baselines"),
     ("scoring",),  # above train: the trainer scores decoded grasps; scoring never imports train
     ("workdir",),  # the run layer: a workdir's files, model, checkpoints (params-only restore), export

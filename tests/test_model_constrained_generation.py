@@ -1,5 +1,5 @@
 """Constrained generation end to end: the project's SentencePiece tokenizer, the tiny model with
-random weights, decode.generate: every decoded answer parses, for every representation, whole
+random weights, generation.generate: every decoded answer parses, for every representation, whole
 (joint mode) or as the value after a cue that ends the prompt (individual mode)."""
 
 import pathlib
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import grasp_text
-from kosmos_jax.models import decode, weights
+from kosmos_jax.models import generation, weights
 from kosmos_jax.models.grammar import TokenConstraint, cue_constraints
 from kosmos_jax.text import formatter
 from kosmos_jax.text import tokens as special
@@ -84,7 +84,7 @@ def constrained_rows(tokenizer, model, constraint, cue="", seeds=3):
         table.set_value(jax.random.normal(weights_key, table.shape))  # the tied LM head: random logits
         embeds = jax.random.normal(image_key, (ROWS, slots, model.config.text.embed_dim))
         # a budget a few tokens over the shortest answer, so the budget often decides
-        tokens = decode.generate(model, ids, mask, image_mask, embeds, max_new_tokens=constraint.min_tokens + 6,
+        tokens = generation.generate(model, ids, mask, image_mask, embeds, max_new_tokens=constraint.min_tokens + 6,
                                  constraint=constraint)
         for row in np.asarray(tokens).tolist():
             assert tokenizer.eos_id in row, row

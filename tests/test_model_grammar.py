@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import grasp_text
-from kosmos_jax.models import decode, grammar_budget, weights
+from kosmos_jax.models import generation, grammar_budget, weights
 from kosmos_jax.models.grammar import TokenConstraint, answer_template, cue_constraints
 from kosmos_jax.text import formatter
 
@@ -355,12 +355,12 @@ def test_constrained_generation_with_the_model_parses():
     constraint = TokenConstraint(vocab, EOS, "xya", image_size=224)
     args = (jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),
             jnp.asarray(ref["image_embeds_position_mask"], bool), jnp.asarray(ref["image_embeds"]))
-    free = np.asarray(decode.generate(model, *args, max_new_tokens=10))
+    free = np.asarray(generation.generate(model, *args, max_new_tokens=10))
     assert not all(grasp_text.parse_grasp("".join(vocab[i] for i in row)).ok for row in free)
     for budget in (100, constraint.min_tokens):
-        tokens = np.asarray(decode.generate(model, *args, max_new_tokens=budget, constraint=constraint))
+        tokens = np.asarray(generation.generate(model, *args, max_new_tokens=budget, constraint=constraint))
         for row in tokens:
             assert grasp_text.parse_grasp(detokenize(row, vocab), "xya").ok
     with pytest.raises(ValueError, match=f"too few.*{constraint.min_tokens} tokens"):
-        decode.generate(model, *args, max_new_tokens=constraint.min_tokens - 1, constraint=constraint)
+        generation.generate(model, *args, max_new_tokens=constraint.min_tokens - 1, constraint=constraint)
 

@@ -13,7 +13,7 @@ from flax import nnx
 import pathlib
 
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models import decode, sharding, weights
+from kosmos_jax.models import generation, sharding, weights
 from kosmos_jax.models.decoder import TextBlock, init_cache
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, build, forward, param_count
 from kosmos_jax.models.summary import summarize
@@ -203,7 +203,7 @@ def test_kv_cache_and_connector_output_follow_the_rules_and_every_rule_is_used(m
     model = weights.load_pretrained(FIXTURE)
     model.eval()
     ids, mask, image_mask, pixels = tiny_inputs(batch=4)
-    expected = decode.prefill(model, ids, mask, image_mask, model.image_embeds(pixels), ids.shape[1] + 2)[0]
+    expected = generation.prefill(model, ids, mask, image_mask, model.image_embeds(pixels), ids.shape[1] + 2)[0]
     activation_names = set()
     original = sharding.mesh_axes_for
 
@@ -220,7 +220,7 @@ def test_kv_cache_and_connector_output_follow_the_rules_and_every_rule_is_used(m
     def embeds_and_prefill(state, ids, mask, image_mask, pixels):
         model = nnx.merge(graphdef, state)
         embeds = model.image_embeds(pixels)
-        logits, cache, _ = decode.prefill(model, ids, mask, image_mask, embeds, ids.shape[1] + 2)
+        logits, cache, _ = generation.prefill(model, ids, mask, image_mask, embeds, ids.shape[1] + 2)
         return embeds, logits, cache
 
     with jax.set_mesh(mesh):

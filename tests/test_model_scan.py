@@ -17,7 +17,7 @@ from flax import nnx
 from safetensors.numpy import load_file
 
 from kosmos_jax.models import config as config_lib
-from kosmos_jax.models import decode, sharding, weights
+from kosmos_jax.models import generation, sharding, weights
 from kosmos_jax.models.decoder import TextTransformer
 from kosmos_jax.models.kosmos2 import abstract_model, forward
 from kosmos_jax.models.layers import scan_blocks
@@ -171,8 +171,8 @@ def test_cached_greedy_decoding_gives_the_same_tokens_in_both_layouts(ref):
     out = {}
     for scan in (False, True):
         model = load(scan_layers=scan)
-        out[scan] = decode.generate(model, *args, max_new_tokens=4, return_logits=True)
-        cache = nnx.eval_shape(lambda model: decode.prefill(model, *args, 16)[1], model)
+        out[scan] = generation.generate(model, *args, max_new_tokens=4, return_logits=True)
+        cache = nnx.eval_shape(lambda model: generation.prefill(model, *args, 16)[1], model)
         shape = (3, 16, TINY.text.attention_heads, TINY.text.embed_dim // TINY.text.attention_heads)
         if scan:
             assert cache["k"].shape == cache["v"].shape == (TINY.text.layers, *shape)

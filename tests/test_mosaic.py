@@ -207,7 +207,7 @@ def test_cell_position_rejects_distractors_in_the_target_cell():
 def test_real_annotated_photos_make_unambiguous_mosaics(cornell_root, kosmos_e_annotations):
     from kosmos_jax.annotators.base import colour_terms
     from kosmos_jax.annotators.kosmos_e import words_from_photo
-    from kosmos_jax.data import cornell, kosmos_e_annotations as reader
+    from kosmos_jax.sources import cornell, kosmos_e_annotations as reader
 
     annotations = reader.read_annotations(kosmos_e_annotations)
     photos = [annotations.attach(p) for p in cornell.load_photos(cornell_root, load_images=False)]

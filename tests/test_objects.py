@@ -4,7 +4,7 @@ import shutil
 
 import pytest
 
-from kosmos_jax.data import cornell, objects, text_file
+from kosmos_jax.sources import cornell, objects, text_file
 
 
 def test_real_map_deduplicated(cornell_root):

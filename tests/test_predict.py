@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax import geometry
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources.photo import Photo
 from kosmos_jax.dataset.views import evaluation_views
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.predict import (GraspPredictor, ImageError, ImageWarning, InstructionError, PredictError,

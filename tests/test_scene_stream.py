@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from kosmos_jax.experiments.spec import load_config
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train import trainer
 from kosmos_jax.train.metrics_log import train_losses
 from kosmos_jax.train.scene_stream import CHUNK_STRIDE, SceneStream
@@ -30,8 +30,8 @@ def stream_parts(tmp_path_factory):
     """(build config, tokenizer) of configs/pretrain.py:tiny_stream."""
     config = load_config("configs/pretrain.py:tiny_stream")
     config.data.root = str(tmp_path_factory.mktemp("stream_data"))
-    dataset = data_lib.prepare(config.data)
-    return config, data_lib.build_config(config.data), dataset.tokenizer()
+    dataset = batches_lib.prepare(config.data)
+    return config, batches_lib.build_config(config.data), dataset.tokenizer()
 
 
 def stream(stream_parts, **options):

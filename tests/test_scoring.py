@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from kosmos_jax import demo
-from kosmos_jax.data import cornell
-from kosmos_jax.data.synthetic import scenes
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources import cornell
+from kosmos_jax.sources.synthetic import scenes
+from kosmos_jax.sources.photo import Photo
 from kosmos_jax.dataset import views
 from kosmos_jax.scoring import fold_scores, no_learning
 from kosmos_jax.experiments import spec

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from kosmos_jax.data import cornell, splits
+from kosmos_jax.sources import cornell, splits
 
 SEEDS = [0, 1, 7, 123]
 

@@ -23,9 +23,9 @@ import tifffile
 from shapely.geometry import Point, Polygon
 
 from kosmos_jax import geometry
-from kosmos_jax.data import cornell
-from kosmos_jax.data.synthetic import scenes
-from kosmos_jax.data.synthetic.objects import CATEGORIES, PALETTE
+from kosmos_jax.sources import cornell
+from kosmos_jax.sources.synthetic import scenes
+from kosmos_jax.sources.synthetic.objects import CATEGORIES, PALETTE
 
 PHOTOS = 60  # 5 photos per object at most, so >= 12 objects: the first round shows 12+ categories
 SEED = 7
@@ -384,8 +384,8 @@ def test_write_dataset_rejects_bad_arguments(tmp_path):
 
 
 def test_make_scene_is_a_pure_function_of_its_generator():
-    from kosmos_jax.data.synthetic.objects import sample_object
-    from kosmos_jax.data.synthetic.render import make_background
+    from kosmos_jax.sources.synthetic.objects import sample_object
+    from kosmos_jax.sources.synthetic.render import make_background
 
     spec = sample_object(np.random.default_rng(0), "Mug", 0)
     background = make_background(np.random.default_rng(1), "pcdb_0001")
@@ -513,7 +513,7 @@ def test_overwrite_replaces_what_an_older_version_left_half_written(tmp_path, ca
 def test_colour_words_name_every_large_painted_area():
     """A palette colour covering a fifth of an object's top view (a part, or a decal painted over
     it) is among its colour words, so a colour instruction can refer to what the photo shows."""
-    from kosmos_jax.data.synthetic.objects import CATEGORIES, PALETTE, sample_object
+    from kosmos_jax.sources.synthetic.objects import CATEGORIES, PALETTE, sample_object
 
     names_of = {rgb: name for name, rgb in PALETTE.items()}
     for category in CATEGORIES:

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.metrics_log import read_metrics, train_losses
 from kosmos_jax.workdir.checkpoints import Checkpoints
 
@@ -35,7 +35,7 @@ def dataset_dir(tmp_path_factory):
         sys.path.pop(0)
     config = kosmos_e.get_config("tiny")
     config.data.root = str(tmp_path_factory.mktemp("datasets"))
-    return str(data_lib.prepare(config.data).dir)
+    return str(batches_lib.prepare(config.data).dir)
 
 
 def command(workdir, dataset_dir, *overrides):

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from kosmos_jax.data import cornell, splits
+from kosmos_jax.sources import cornell, splits
 from kosmos_jax.dataset import build as build_module
 from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax.dataset import inputs

@@ -2,7 +2,7 @@
 
 One entry per photo: obj_name, instruction_name / _color / _shape / _purpose / _strategy (whole
 sentences) and instruction_part ({"0": sentence, ...}, one per non-NaN rectangle in file order).
-The reader kosmos_jax/data/kosmos_e_annotations.py attaches an entry to `Photo.annotations`
+The reader kosmos_jax/sources/kosmos_e_annotations.py attaches an entry to `Photo.annotations`
 (the raw entry under "instructions", the object name under "name"); this module reads either that
 or a raw entry.
 
@@ -88,7 +88,7 @@ def _part_sentences(raw: Any) -> list[str | None]:
 
 def words_from_entry(entry: Mapping[str, Any]) -> ObjectWords:
     """ObjectWords from one KOSMOS-E entry: the raw JSON entry, or the `Photo.annotations` of
-    kosmos_jax.data.kosmos_e_annotations (which keeps the raw entry under "instructions")."""
+    kosmos_jax.sources.kosmos_e_annotations (which keeps the raw entry under "instructions")."""
     raw = entry.get("instructions")
     if isinstance(raw, Mapping):
         return dataclasses.replace(words_from_entry(raw), name=_clean(entry.get("name")) or _clean(raw.get("obj_name")))

@@ -1,4 +1,4 @@
-"""Words from the synthetic scenes' metadata (`synthetic_meta.json`, kosmos_jax.data.synthetic).
+"""Words from the synthetic scenes' metadata (`synthetic_meta.json`, kosmos_jax.sources.synthetic).
 
 Per photo the metadata holds name, colour (list) and colour_phrase ("red with white details"),
 shape (adjectives) and shape_phrase ("cylindrical object with a handle"), purpose, strategy,

@@ -17,7 +17,7 @@ evaluation, does the following; each is fixed here, with what the fix changes:
 - The "object-wise" split is contiguous blocks of the sorted file list (the list rotated by a
   fraction, then cut): blocks follow file numbers, not objects, so an object whose photos straddle a
   cut is on both sides. Here object-wise folds group photos by object id (processedData/z.txt,
-  kosmos_jax.data.splits); image-wise folds are over photos, before augmentation.
+  kosmos_jax.sources.splits); image-wise folds are over photos, before augmentation.
 - The crops are centred on the labels: the crop window is centred on the mean of all ground-truth
   corners at training AND test time, so a test input shows the network where the answer is (the
   image centre alone then scores well). Here the honest test views are the image-centre crop, not

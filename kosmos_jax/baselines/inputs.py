@@ -3,7 +3,7 @@
     views = fold_views(photos, "rgbd", fold=0, scheme="object")          # honest protocol
     for batch in batches(views.train, batch_size=8, seed=0): ...           # {"image", "grasps", "mask"}
 
-The views are KOSMOS-E's (kosmos_jax.dataset.build): the same folds (kosmos_jax.data.splits, decided
+The views are KOSMOS-E's (kosmos_jax.dataset.build): the same folds (kosmos_jax.sources.splits, decided
 over photos or object ids before any augmentation), the same augmentation settings
 (`dataset.views.augment_config`: crop 351 -> rotate -> translate -> crop 224, `copies` per training
 photo) and the same keys (photo i of the list gets fold_in(PRNGKey(seed), i); the honest test views
@@ -37,8 +37,8 @@ from kosmos_jax.augment import affine
 from kosmos_jax.augment.pipeline import AugmentConfig, augment, move_grasps, pad_grasps
 from kosmos_jax.augment.warp import warp_images
 from kosmos_jax.baselines.layers import input_channels
-from kosmos_jax.data import splits
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources import splits
+from kosmos_jax.sources.photo import Photo
 from kosmos_jax.dataset.views import HONEST_TEST_CROP, augment_config
 
 BATCH_KEYS = ("image", "grasps", "mask")

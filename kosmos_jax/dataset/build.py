@@ -4,10 +4,10 @@
         [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0] \
         [--validation-fraction 0.1] [--overwrite]
 
-Steps: read the photos (kosmos_jax.data.cornell) -> words of each object (--annotations: the
+Steps: read the photos (kosmos_jax.sources.cornell) -> words of each object (--annotations: the
 KOSMOS-E file or a synthetic_meta.json; else the folder's synthetic_meta.json; else colour from
 pixels, where a photo whose pixels name no colour loses only its colour kinds, listed in the
-statistics) -> folds over photos or objects BEFORE augmentation (kosmos_jax.data.splits, drawn
+statistics) -> folds over photos or objects BEFORE augmentation (kosmos_jax.sources.splits, drawn
 with --fold-seed only, so builds that differ in --seed, the augmentation and instruction seed,
 share their test folds) -> with --validation-fraction F > 0 (honest protocol only), a validation
 split held out of the fold's TRAINING photos (image-wise by photo, object-wise by whole objects;
@@ -52,7 +52,7 @@ from typing import Sequence
 import numpy as np
 
 from kosmos_jax import grasp_text
-from kosmos_jax.data import splits
+from kosmos_jax.sources import splits
 from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax.dataset import images as image_table
 from kosmos_jax.dataset import samples as sample_stage

@@ -16,8 +16,8 @@ from kosmos_jax.annotators import kosmos_e as kosmos_e_words
 from kosmos_jax.annotators import rules as rule_words
 from kosmos_jax.annotators import synthetic as synthetic_words
 from kosmos_jax.annotators.base import ObjectWords
-from kosmos_jax.data import cornell
-from kosmos_jax.data.kosmos_e_annotations import AnnotationMismatchError, parse_annotations
+from kosmos_jax.sources import cornell
+from kosmos_jax.sources.kosmos_e_annotations import AnnotationMismatchError, parse_annotations
 
 WORD_SOURCES = ("kosmos_e", "synthetic", "rules")
 RULE_KINDS = ("non", "angle", "colour", "position", "multi-colour", "multi-position")

@@ -12,7 +12,7 @@ themselves (`_LocalBuilder`), in tfds' layout.
 
 Two builders:
 - `CornellFolder`: every photo of a Cornell-format folder, given as `manual_dir`, in one split
-  "full" (folds are decided later, by `kosmos_jax.data.splits`).
+  "full" (folds are decided later, by `kosmos_jax.sources.splits`).
 - `InstructGrasp`: formatted and tokenized INSTRUCT-GRASP examples, one config per dataset
   identity (`InstructGraspConfig`: a readable name of the main settings plus a hash of the
   build's full identity, `kosmos_jax.dataset.identity`). The examples are made by
@@ -41,7 +41,7 @@ import tensorflow_datasets as tfds
 from etils import epath
 from tensorflow_datasets.core import example_serializer
 
-from kosmos_jax.data import cornell
+from kosmos_jax.sources import cornell
 from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax import publish
 from kosmos_jax.dataset.images import ImageTable, ImageTableWriter, StoredSplit, png_bytes

@@ -35,7 +35,7 @@ import numpy as np
 from kosmos_jax.augment import affine
 from kosmos_jax.augment.pipeline import AugmentConfig, augment, kept_grasps, move_grasps, pad_grasps
 from kosmos_jax.augment.warp import warp_images
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources.photo import Photo
 from kosmos_jax.instruct.sample import View
 
 RECIPES = ("random", "paper")

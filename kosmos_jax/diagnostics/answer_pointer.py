@@ -23,7 +23,7 @@ from flax import nnx
 from kosmos_jax.models.connector import cell_index, grid_side
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.train.loss import image_slot_states
-from kosmos_jax.train import data
+from kosmos_jax.train import batches
 from kosmos_jax.train.step import BATCH_KEYS, hidden_states, rng_state
 from kosmos_jax.train.step import slots as slots_of
 from kosmos_jax.workdir.files import RunError
@@ -76,7 +76,7 @@ def answer_pointer(run: Run, split_name: str, step: int | None = None, batch_siz
     split, pointer = run.split(split_name), pointer_of(run, params)
     side = grid_side(run.model_config.latent_query_num)
     pointed, targets, groups = [], [], []
-    for batch in data.eval_batches(split, batch_size, 0, 1):
+    for batch in batches.eval_batches(split, batch_size, 0, 1):
         keep = (batch["example_index"] >= 0) & np.isfinite(batch["grasp"][:, :2]).all(-1)
         image_side = batch["image"].shape[1]
         pointed.append(pointer(batch)[keep])

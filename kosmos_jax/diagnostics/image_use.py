@@ -23,7 +23,7 @@ import numpy as np
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import open_run
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step
 
@@ -77,8 +77,8 @@ def image_use(workdir, step: int | None = None, split: str = "test", batches: in
     eval_step, sharding = make_eval_step(run.model_config, mesh), batch_sharding(mesh)
     totals = {name: {"loss_sum": 0.0, "correct": 0, "tokens": 0} for name in IMAGES}
     examples = 0
-    spares = spare_images(data_lib.eval_batches(run.split(split), batch_size, 0, 1, 0))
-    for batch in data_lib.eval_batches(run.split(split), batch_size, 0, 1, batches):
+    spares = spare_images(batches_lib.eval_batches(run.split(split), batch_size, 0, 1, 0))
+    for batch in batches_lib.eval_batches(run.split(split), batch_size, 0, 1, batches):
         examples += int(np.sum(batch["example_index"] >= 0))
         rest = {key: jax.device_put(batch[key], sharding) for key in BATCH_KEYS if key != "image"}
         images = {"own": batch["image"], "other": other_images(batch["image"], spares), "blank": np.zeros_like(batch["image"])}

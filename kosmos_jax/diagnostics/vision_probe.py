@@ -32,7 +32,7 @@ from kosmos_jax.workdir.run import open_run
 from kosmos_jax.models.connector import cell_centre, cell_index
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.vision import VisionModel
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 
 READOUTS = ("patches", "cls", "cells")
 
@@ -101,7 +101,7 @@ def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size
     run = open_run(workdir)
     probe = CentreProbe(run.model_config.vision, readout, nnx.Rngs(seed))
     optimizer = nnx.Optimizer(probe, optax.adamw(lr), wrt=nnx.Param)
-    batches = data_lib.train_batches(run.split("train"), batch_size, seed, 0, 1)
+    batches = batches_lib.train_batches(run.split("train"), batch_size, seed, 0, 1)
     seen = []
     for step in range(1, steps + 1):
         batch = next(batches)
@@ -113,7 +113,7 @@ def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size
             progress(f"step {step}/{steps}: train {shown}")
     mean_guess = np.concatenate(seen).mean(0)
     errors, tested = [], []
-    for batch in data_lib.eval_batches(run.split("test"), batch_size, 0, 1):
+    for batch in batches_lib.eval_batches(run.split("test"), batch_size, 0, 1):
         keep = batch["example_index"] >= 0
         side = batch["image"].shape[1]
         predicted = np.asarray(predict(probe, jnp.asarray(batch["image"]))) * side

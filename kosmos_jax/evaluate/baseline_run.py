@@ -29,7 +29,7 @@ from kosmos_jax.scoring.view_scores import view_results
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train.baseline_task import abstract_state, family_config, load_views
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.workdir.checkpoints import Checkpoints, chosen_step
 from kosmos_jax.workdir.files import RunError, read_description, run_task
@@ -75,7 +75,7 @@ class BaselineRun:
         """The photos the run was trained on (run.json's data identity), else where its config finds
         them (synthetic scenes are written again)."""
         recorded = pathlib.Path(self.description["data_identity"]["source"])
-        return recorded.resolve() if recorded.is_dir() else data_lib.source_folder(self.config.data)
+        return recorded.resolve() if recorded.is_dir() else batches_lib.source_folder(self.config.data)
 
     def split(self, name: str) -> ViewArrays:
         """The views of split `name` ("test" or "train") of the run's fold."""

@@ -56,7 +56,7 @@ def no_learning_scores(workdir: pathlib.Path) -> dict | None:
     description = records.run_description(workdir)
     if description.get("config", {}).get("task", "kosmos_e") != "kosmos_e":
         return None
-    from kosmos_jax.train.data import open_dataset
+    from kosmos_jax.train.batches import open_dataset
 
     test = open_dataset(description["dataset_dir"]).splits()["test"].examples
     identity = description["data_identity"]
@@ -69,7 +69,7 @@ def check_startable(arm_config, name: str) -> None:
     drawn on first use) and, for an arm that must start from KOSMOS-2, the weights' folder."""
     data = arm_config.data
     if data.source != "synthetic":
-        from kosmos_jax.train.data import source_folder
+        from kosmos_jax.train.batches import source_folder
 
         try:
             source_folder(data)

@@ -34,7 +34,7 @@ def configured_windows(config) -> dict[str, int]:
 
 
 def value_picker(token_texts, window: int, angle_window: int = 0) -> LocalMean | None:
-    """The picker a decoder takes for `window` and `angle_window` (models.decode.generate): None
+    """The picker a decoder takes for `window` and `angle_window` (models.generation.generate): None
     (greedy) when both are 0."""
     return LocalMean(token_texts, window, angle_window) if window or angle_window else None
 

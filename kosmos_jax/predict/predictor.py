@@ -8,7 +8,7 @@
 
 Each photo is brought to the model's view as the run's test views were made (framing.py), each
 instruction to the prompts training laid out (asking.py); the answers are decoded greedily with
-the KV cache under the grasp grammar (scoring.decoding, one jitted program per batch shape and
+the KV cache under the grasp grammar (scoring.model_answers, one jitted program per batch shape and
 question), parsed and combined as the evaluation does, and the grasp is mapped back to the
 photo's pixels. Batches are padded to one of `batch_sizes` (more rows are decoded in chunks of the
 largest) and prompts left-padded to a multiple of PROMPT_STEP tokens, so a new batch length or
@@ -37,7 +37,7 @@ from kosmos_jax.predict.errors import ImageError, InstructionError, RunFolderErr
 from kosmos_jax.predict.framing import PHOTO_SHORT_SIDE, Framing, frame
 from kosmos_jax.predict.images import load_image
 from kosmos_jax.workdir.sizes import CORNELL_SIZE, run_grasp_size
-from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.model_answers import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine
 from kosmos_jax.scoring.prompts import left_padded
 from kosmos_jax.scoring.questions import questions

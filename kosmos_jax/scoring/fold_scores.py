@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from kosmos_jax.data import splits
+from kosmos_jax.sources import splits
 from kosmos_jax.dataset.views import Views
 from kosmos_jax.metrics import grasp_success
 from kosmos_jax.scoring.no_learning import ground_truth_mean

@@ -26,7 +26,7 @@ from jax.sharding import Mesh
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.value_decoding import value_picker
 from kosmos_jax.scoring import tally
-from kosmos_jax.scoring.decoding import Decoder
+from kosmos_jax.scoring.model_answers import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
 from kosmos_jax.scoring.prompts import left_padded, prompt, target_ids
 from kosmos_jax.scoring.questions import Question, questions

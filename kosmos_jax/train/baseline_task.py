@@ -24,10 +24,10 @@ from jax.sharding import NamedSharding, PartitionSpec
 
 from kosmos_jax.baselines import inputs
 from kosmos_jax.baselines.family import BaselineConfig, make_family
-from kosmos_jax.data import cornell
+from kosmos_jax.sources import cornell
 from kosmos_jax.metrics import grasp_success
 from kosmos_jax.scoring.fold_scores import WH_POLICY
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState
 from kosmos_jax.train.step import _all_finite, dropout_key, split_microbatches
@@ -58,13 +58,13 @@ def family_config(model) -> BaselineConfig:
 
 
 def data_identity(data) -> dict:
-    return {"source": str(data_lib.source_folder(data)), **{name: data[name] for name in (
+    return {"source": str(batches_lib.source_folder(data)), **{name: data[name] for name in (
         "scheme", "protocol", "fold", "folds", "copies", "seed", "recipe")}}
 
 
 def load_views(data, mode: str) -> inputs.FoldViews:
     """The fold's train and test views of the photos config.data.source names (synthetic ones written first)."""
-    photos = cornell.load_photos(data_lib.source_folder(data))
+    photos = cornell.load_photos(batches_lib.source_folder(data))
     return inputs.fold_views(photos, mode, fold=data.fold, scheme=data.scheme, protocol=data.protocol, k=data.folds,
                              copies=data.copies, recipe=data.recipe, seed=data.seed)
 

@@ -22,7 +22,7 @@ import tempfile
 
 import numpy as np
 
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.dataset import build as build_lib
 from kosmos_jax.dataset import samples as sample_stage
 from kosmos_jax.dataset.inputs import object_words, read_photos, word_source

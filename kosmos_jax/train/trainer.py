@@ -34,7 +34,7 @@ from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_decoding import configured_windows
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.text.formatter import FormatConfig
-from kosmos_jax.train import data as data_lib
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train import distributed, run_start, scene_stream
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
 from kosmos_jax.train.baseline_task import baseline_task
@@ -102,18 +102,18 @@ class Preemption:
         signal.signal(signal.SIGTERM, self.previous)
 
 
-def prepare_data(data_config) -> data_lib.Dataset:
+def prepare_data(data_config) -> batches_lib.Dataset:
     """Process 0 builds (or finds) the dataset first; the others then find the same build."""
     if jax.process_count() == 1:
-        return data_lib.prepare(data_config)
+        return batches_lib.prepare(data_config)
     from jax.experimental import multihost_utils
 
-    dataset = data_lib.prepare(data_config) if jax.process_index() == 0 else None
+    dataset = batches_lib.prepare(data_config) if jax.process_index() == 0 else None
     multihost_utils.sync_global_devices("kosmos_jax dataset built")
-    return dataset or data_lib.prepare(data_config)
+    return dataset or batches_lib.prepare(data_config)
 
 
-def run_description(config, dataset: data_lib.Dataset, model_cfg) -> dict:
+def run_description(config, dataset: batches_lib.Dataset, model_cfg) -> dict:
     return {"config": json.loads(config.to_json_best_effort()), "data_identity": dataset.identity,
             "dataset_dir": str(dataset.dir), "model": model_cfg.to_hf_dict(),
             # they change the forward pass; not in to_hf_dict; a field at its default is left out, as older runs wrote it
@@ -139,7 +139,7 @@ def check_same_run(stored: dict, current: dict, workdir) -> None:
 def evaluate(eval_step, params, split, config, sharding) -> dict:
     totals = {"loss_sum": 0.0, "correct": 0, "tokens": 0}
     examples = 0
-    for batch in data_lib.eval_batches(split, config.train.batch_size, jax.process_index(), jax.process_count(),
+    for batch in batches_lib.eval_batches(split, config.train.batch_size, jax.process_index(), jax.process_count(),
                                        config.train.eval_batches):
         sums = jax.device_get(eval_step(params, distributed.process_batch({k: batch[k] for k in BATCH_KEYS}, sharding)))
         for key in totals:
@@ -183,7 +183,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     stream = stream_settings(config.data)
     if stream:
         description["data_stream"] = stream
-        stream_build = data_lib.build_config(config.data)
+        stream_build = batches_lib.build_config(config.data)
         if "kinds" in stream:
             stream_build = dataclasses.replace(stream_build, kinds=tuple(stream["kinds"]))
         batches = scene_stream.SceneStream(stream_build, tokenizer, photos=stream["photos"], seed=stream["seed"],
@@ -191,9 +191,9 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                            process_count=jax.process_count())
         describe = batches.describe
     else:
-        batches = data_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
+        batches = batches_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
                                          jax.process_index(), jax.process_count())
-        describe = lambda host: data_lib.describe_examples(splits["train"], host["example_index"])
+        describe = lambda host: batches_lib.describe_examples(splits["train"], host["example_index"])
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
                                  seed=config.train.seed, auxiliary=AuxiliaryLosses.from_config(config.train),
                                  angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()))

@@ -29,7 +29,7 @@ from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_decoding import configured_windows
 from kosmos_jax.workdir.sizes import run_grasp_size
-from kosmos_jax.scoring.decoding import fixed_streams
+from kosmos_jax.scoring.model_answers import fixed_streams
 from kosmos_jax.workdir.files import TOKENIZER_FILE
 from kosmos_jax.workdir.pretrained import folder_description, write_description
 from kosmos_jax.workdir.run import open_run

@@ -21,5 +21,5 @@ arm() {  # name steps photos
   echo "$1 done $(date +%T)" >> $L/progress.txt
 }
 arm s800 800 300 & arm s2400 2400 300 & arm s2400_p1200 2400 1200 &
-{ time python3 -m kosmos_jax.data.synthetic --out $VAL --photos 60 --seed 7 --quiet ; } > $L/val7.log 2>&1 && touch /tmp/val.ready
+{ time python3 -m kosmos_jax.sources.synthetic --out $VAL --photos 60 --seed 7 --quiet ; } > $L/val7.log 2>&1 && touch /tmp/val.ready
 wait

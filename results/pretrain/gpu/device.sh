@@ -26,13 +26,13 @@ from kosmos_jax.experiments.spec import config_module
 config = config_module("configs/kosmos_e.py").get_config("demo_gpu")
 config.data.root, config.data.synthetic_photos = sys.argv[1], int(sys.argv[2])
 config.data.build.augmentations, config.data.synthetic_seed = int(sys.argv[3]), int(sys.argv[4])
-from kosmos_jax.train import data
-data.prepare(config.data)
+from kosmos_jax.train import batches
+batches.prepare(config.data)
 PY
 }
 stamp start
 for set in "300 7" "40 1"; do set -- $set
-  ( JAX_PLATFORMS=cpu python3 -m kosmos_jax.data.synthetic --out /tmp/synthetic-$1-seed$2 --photos $1 --seed $2 --quiet \
+  ( JAX_PLATFORMS=cpu python3 -m kosmos_jax.sources.synthetic --out /tmp/synthetic-$1-seed$2 --photos $1 --seed $2 --quiet \
       > $L/synthetic-$1-seed$2.log 2>&1; stamp synthetic-$1-seed$2 written ) &
 done
 ( prepare /tmp/d_b128 1200 16 $SEED > $L/b128.build.log 2>&1; stamp b128 data built ) &

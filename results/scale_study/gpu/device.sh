@@ -22,12 +22,12 @@ import importlib.util, sys
 spec = importlib.util.spec_from_file_location("kosmos_e", "configs/kosmos_e.py")
 module = importlib.util.module_from_spec(spec); spec.loader.exec_module(module)
 config = module.get_config("demo"); config.data.root = sys.argv[1]; config.data.synthetic_photos = int(sys.argv[2])
-from kosmos_jax.train import data
-data.prepare(config.data)
+from kosmos_jax.train import batches
+batches.prepare(config.data)
 PY
 }
 stamp start
-( JAX_PLATFORMS=cpu python3 -m kosmos_jax.data.synthetic --out /tmp/synthetic-$VAL-seed7 --photos $VAL --seed 7 --quiet > $L/val.log 2>&1; stamp val written ) &
+( JAX_PLATFORMS=cpu python3 -m kosmos_jax.sources.synthetic --out /tmp/synthetic-$VAL-seed7 --photos $VAL --seed 7 --quiet > $L/val.log 2>&1; stamp val written ) &
 val_pid=$!
 ( prepare /tmp/p$SMALL $SMALL > $L/p$SMALL.build.log 2>&1; stamp p$SMALL built ) &
 small_pid=$!

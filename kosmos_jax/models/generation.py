@@ -3,7 +3,7 @@
 Batched prompts are LEFT-padded (attention_mask 0, pad id 1). Positions follow KOSMOS-2: the first
 real token of every row is at position 2 and each real token adds one, so a left-padded row decodes
 exactly as it would alone. (transformers' `generate` instead adds the padding length to the
-positions of generated tokens; see tests/test_model_decode.py.)
+positions of generated tokens; see tests/test_model_generation.py.)
 
 A `constraint` (the interface of NoConstraint; kosmos_jax.models.grammar.TokenConstraint for grasp
 answers) restricts every step to the tokens it allows, told how many tokens the row may still emit

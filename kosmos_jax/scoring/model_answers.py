@@ -17,7 +17,7 @@ import numpy as np
 from flax import nnx
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from kosmos_jax.models import decode
+from kosmos_jax.models import generation
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.kosmos2 import abstract_model
 from kosmos_jax.models.preprocess import pixels
@@ -39,7 +39,7 @@ def fixed_streams(rest: nnx.State) -> nnx.State:
 def _answers(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens, picker):
     model = nnx.view(nnx.merge(graphdef, params, fixed_streams(rest)), deterministic=True)
     embeds = model.image_embeds(pixels(images, model.config.vision.image_size), model.instruction_bag(ids, mask, image_mask))
-    return decode.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint,
+    return generation.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint,
                            picker=picker)
 
 

@@ -1,6 +1,6 @@
 """Synthetic grasping scenes written as a Cornell-layout dataset: the project's own data.
 
-    python -m kosmos_jax.data.synthetic --out DIR --photos N --seed S [--overwrite]
+    python -m kosmos_jax.sources.synthetic --out DIR --photos N --seed S [--overwrite]
 
 writes, like the real Cornell set (see ../shared/data/README.md):
   DIR/01/pcd0100r.png ...        640x480 RGB photo; 100 photos a folder (01, 02, ..., 10 for pcd1000)
@@ -47,10 +47,10 @@ import numpy as np
 import tifffile
 
 from kosmos_jax import geometry
-from kosmos_jax.data import cornell
-from kosmos_jax.data.synthetic import grasps as grasps_lib
-from kosmos_jax.data.synthetic.objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
-from kosmos_jax.data.synthetic.render import HEIGHT, MIN_OBJECT_HEIGHT_M, WIDTH, Background, make_background, render
+from kosmos_jax.sources import cornell
+from kosmos_jax.sources.synthetic import grasps as grasps_lib
+from kosmos_jax.sources.synthetic.objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
+from kosmos_jax.sources.synthetic.render import HEIGHT, MIN_OBJECT_HEIGHT_M, WIDTH, Background, make_background, render
 from kosmos_jax import publish
 
 FIRST_NUMBER = 100  # Cornell's photos start at pcd0100
@@ -299,7 +299,7 @@ def _write_files(out: pathlib.Path, photos: int, seed: int, progress: bool) -> d
     (out / "processedData" / "z.txt").write_text("".join(z_lines))
     (out / "processedData" / "backgroundMapping.txt").write_text("".join(mapping_lines))
     header = {
-        "generator": "kosmos_jax.data.synthetic",
+        "generator": "kosmos_jax.sources.synthetic",
         "format_version": 1,
         "seed": seed,
         "count": photos,
@@ -330,13 +330,13 @@ def read_meta(root) -> dict[str, dict]:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise ValueError(f"{path}: not valid JSON ({error})") from None
-    if data.get("generator") != "kosmos_jax.data.synthetic" or "photos" not in data:
-        raise ValueError(f"{path}: not written by kosmos_jax.data.synthetic")
+    if data.get("generator") != "kosmos_jax.sources.synthetic" or "photos" not in data:
+        raise ValueError(f"{path}: not written by kosmos_jax.sources.synthetic")
     return data["photos"]
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.data.synthetic", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.sources.synthetic", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", required=True, type=pathlib.Path, help="dataset folder (created)")
     parser.add_argument("--photos", required=True, type=int, help=f"number of photos, 1..{MAX_PHOTOS}")
     parser.add_argument("--seed", type=int, default=0, help="non-negative integer (default 0)")

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.data.synthetic.objects import PartShape
+from kosmos_jax.sources.synthetic.objects import PartShape
 
 MAX_OPENING_PX = 100.0
 OPENING_MARGIN_PX = (8.0, 18.0)  # total extra opening beyond the object, both sides together

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from kosmos_jax.models import decode, weights
+from kosmos_jax.models import generation, weights
 from kosmos_jax.models.kosmos2 import forward
 
 FIXTURE = pathlib.Path(__file__).parent / "fixtures" / "kosmos2_tiny"
@@ -25,8 +25,8 @@ def setup():
 
 def test_cached_and_uncached_decoding_agree(setup):
     model, _, args = setup
-    cached, cached_logits = decode.generate(model, *args, max_new_tokens=NEW, use_cache=True, return_logits=True)
-    plain, plain_logits = decode.generate(model, *args, max_new_tokens=NEW, use_cache=False, return_logits=True)
+    cached, cached_logits = generation.generate(model, *args, max_new_tokens=NEW, use_cache=True, return_logits=True)
+    plain, plain_logits = generation.generate(model, *args, max_new_tokens=NEW, use_cache=False, return_logits=True)
     np.testing.assert_array_equal(np.asarray(cached), np.asarray(plain))
     np.testing.assert_allclose(np.asarray(cached_logits), np.asarray(plain_logits), atol=1e-5)
     # and the last step's logits equal one forward pass over prompt + generated tokens
@@ -38,7 +38,7 @@ def test_cached_and_uncached_decoding_agree(setup):
     np.testing.assert_allclose(np.asarray(logits[:, ids.shape[1] - 1:]), np.asarray(cached_logits), atol=1e-5)
 
 
-class EosFirstOnRowZero(decode.NoConstraint):
+class EosFirstOnRowZero(generation.NoConstraint):
     """Row 0 must end at once; the other rows may not end."""
 
     def __init__(self, eos_id):
@@ -53,8 +53,8 @@ def test_cached_and_uncached_decoding_agree_after_an_eos(setup):
     """Padding after a row's EOS is masked the same way with and without the cache."""
     model, _, args = setup
     constraint = EosFirstOnRowZero(model.config.text.eos_token_id)
-    cached, cached_logits = decode.generate(model, *args, max_new_tokens=NEW, constraint=constraint, return_logits=True)
-    plain, plain_logits = decode.generate(model, *args, max_new_tokens=NEW, constraint=constraint, use_cache=False,
+    cached, cached_logits = generation.generate(model, *args, max_new_tokens=NEW, constraint=constraint, return_logits=True)
+    plain, plain_logits = generation.generate(model, *args, max_new_tokens=NEW, constraint=constraint, use_cache=False,
                                           return_logits=True)
     assert cached[0, 0] == model.config.text.eos_token_id and (cached[0, 1:] == model.config.text.pad_token_id).all()
     np.testing.assert_array_equal(np.asarray(cached), np.asarray(plain))
@@ -71,16 +71,16 @@ def test_cached_and_uncached_decoding_agree_after_an_eos(setup):
 def test_too_few_new_tokens_for_the_constraint_are_refused(setup):
     model, _, args = setup
 
-    class LongAnswers(decode.NoConstraint):
+    class LongAnswers(generation.NoConstraint):
         min_tokens = NEW + 1
 
     with pytest.raises(ValueError, match=f"max_new_tokens={NEW} is too few.*{NEW + 1} tokens"):
-        decode.generate(model, *args, max_new_tokens=NEW, constraint=LongAnswers())
+        generation.generate(model, *args, max_new_tokens=NEW, constraint=LongAnswers())
 
 
 def test_greedy_tokens_match_transformers_generate(setup):
     model, ref, args = setup
-    tokens = decode.generate(model, *args, max_new_tokens=NEW)
+    tokens = generation.generate(model, *args, max_new_tokens=NEW)
     # the fixture's greedy ids are for the unpadded rows (transformers shifts padded rows' positions)
     np.testing.assert_array_equal(np.asarray(tokens[:-1]), ref["greedy_ids"])
 
@@ -88,9 +88,9 @@ def test_greedy_tokens_match_transformers_generate(setup):
 def test_left_padding_changes_nothing(setup):
     model, ref, args = setup
     ids, mask, image_mask, embeds = args
-    batched, batched_logits = decode.generate(model, *args, max_new_tokens=NEW, return_logits=True)
+    batched, batched_logits = generation.generate(model, *args, max_new_tokens=NEW, return_logits=True)
     pad = int((~mask[-1]).sum())
-    alone, alone_logits = decode.generate(model, ids[-1:, pad:], mask[-1:, pad:], image_mask[-1:, pad:], embeds[-1:],
+    alone, alone_logits = generation.generate(model, ids[-1:, pad:], mask[-1:, pad:], image_mask[-1:, pad:], embeds[-1:],
                                           max_new_tokens=NEW, return_logits=True)
     np.testing.assert_array_equal(np.asarray(batched[-1:]), np.asarray(alone))
     np.testing.assert_allclose(np.asarray(batched_logits[-1:]), np.asarray(alone_logits), atol=1e-5)
@@ -100,9 +100,9 @@ def test_rows_stop_at_eos_and_then_emit_padding(setup):
     model, _, args = setup
     cfg = model.config.text
 
-    class ForceEos(decode.NoConstraint):
+    class ForceEos(generation.NoConstraint):
         def allowed(self, state, vocab_size, remaining):
             return jnp.zeros((state.shape[0], vocab_size), bool).at[:, cfg.eos_token_id].set(True)
 
-    tokens = np.asarray(decode.generate(model, *args, max_new_tokens=3, constraint=ForceEos()))
+    tokens = np.asarray(generation.generate(model, *args, max_new_tokens=3, constraint=ForceEos()))
     assert (tokens[:, 0] == cfg.eos_token_id).all() and (tokens[:, 1:] == cfg.pad_token_id).all()

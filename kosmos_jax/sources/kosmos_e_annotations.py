@@ -26,9 +26,9 @@ import json
 import pathlib
 from typing import Any, Mapping, Sequence
 
-from kosmos_jax.data import text_file
-from kosmos_jax.data.cornell_set import FULL_SET_IDS
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources import text_file
+from kosmos_jax.sources.cornell_set import FULL_SET_IDS
+from kosmos_jax.sources.photo import Photo
 
 FIELDS = {
     "name": "obj_name",

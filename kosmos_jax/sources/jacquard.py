@@ -35,8 +35,8 @@ import cv2
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.data import text_file
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources import text_file
+from kosmos_jax.sources.photo import Photo
 
 GRASPS_PATTERN = re.compile(r"^(\d+)_(.+)_grasps\.txt$")
 

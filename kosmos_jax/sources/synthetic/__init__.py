@@ -2,5 +2,5 @@
 
 objects: the object catalogue and its parts; render: drawing, depth and backgrounds; grasps: the
 grasp rectangles of each part; scenes: whole photos and the dataset writer (`python -m
-kosmos_jax.data.synthetic`). What they write is read back by the Cornell reader like real photos.
+kosmos_jax.sources.synthetic`). What they write is read back by the Cornell reader like real photos.
 """

@@ -18,7 +18,7 @@ Photos come sorted by id, which is the order KOSMOS-E's annotation keys follow. 
 `load_images=False` the Photo's `rgb` and `depth` are None (only labels are read); Photo.height and
 Photo.width then do not work.
 
-    python -m kosmos_jax.data.cornell ROOT [--no-images] [--kosmos-e PATH]
+    python -m kosmos_jax.sources.cornell ROOT [--no-images] [--kosmos-e PATH]
 
 prints a JSON summary of the data set under ROOT.
 """
@@ -38,9 +38,9 @@ import cv2
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.data import kosmos_e_annotations, objects, text_file
-from kosmos_jax.data.cornell_set import FULL_SET_IDS
-from kosmos_jax.data.photo import Photo
+from kosmos_jax.sources import kosmos_e_annotations, objects, text_file
+from kosmos_jax.sources.cornell_set import FULL_SET_IDS
+from kosmos_jax.sources.photo import Photo
 
 FILE_PATTERN = re.compile(r"^(pcd\d{4})(r\.png|d\.tiff|cpos\.txt|cneg\.txt)$")
 FOLDER_PATTERN = re.compile(r"\d\d")  # the numbered folders 01 .. 10 (use fullmatch)

@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from kosmos_jax.data.synthetic import scenes
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.dataset import build as build_lib
 from kosmos_jax.dataset import pipeline
 from kosmos_jax.dataset.built import Dataset, open_dataset

@@ -10,7 +10,7 @@ once to float32 (GG-CNN's divide-and-multiply around cv2.inpaint may move it by 
 a NaN or infinite point counts as missing (in GG-CNN it would spoil the whole image). On a repeated
 index the last point wins, as in GG-CNN's line-by-line loop.
 
-    python -m kosmos_jax.data.cornell_depth ROOT [--overwrite]
+    python -m kosmos_jax.sources.cornell_depth ROOT [--overwrite]
 
 writes `pcdNNNNd.tiff` beside every `pcdNNNN.txt` under ROOT (at any depth), keeping existing ones
 unless --overwrite; a file that cannot be read stops it with one line naming the file (exit 1).
@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 import tifffile
 
-from kosmos_jax.data import text_file
-from kosmos_jax.data.cornell import CornellFormatError
+from kosmos_jax.sources import text_file
+from kosmos_jax.sources.cornell import CornellFormatError
 
 SHAPE = (480, 640)  # Cornell's images; `index` counts pixels row by row over this width
 METRES_PER_UNIT = 1e-3  # Cornell's coordinates are millimetres; the d.tiff holds metres

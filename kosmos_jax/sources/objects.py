@@ -12,7 +12,7 @@ from __future__ import annotations
 import pathlib
 from typing import Mapping
 
-from kosmos_jax.data import text_file
+from kosmos_jax.sources import text_file
 
 ObjectMap = Mapping[str, tuple[int, str]]  # photo id ("pcd0100") -> (object id, category)
 

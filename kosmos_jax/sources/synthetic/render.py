@@ -16,7 +16,7 @@ import math
 import cv2
 import numpy as np
 
-from kosmos_jax.data.synthetic.objects import METRES_PER_PIXEL, ObjectSpec, PartShape
+from kosmos_jax.sources.synthetic.objects import METRES_PER_PIXEL, ObjectSpec, PartShape
 
 HEIGHT, WIDTH = 480, 640
 MIN_OBJECT_HEIGHT_M = 0.008
