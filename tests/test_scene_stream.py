@@ -111,6 +111,16 @@ def test_the_stream_may_ask_for_other_kinds_than_the_build():
         trainer.stream_settings(data)
 
 
+def test_a_stream_with_its_own_kinds_makes_only_those(stream_parts):
+    config = ml_collections.ConfigDict(stream_parts[0].to_dict())
+    config.data.stream.kinds = "non,multi-colour"
+    config.train.batch_size = 8
+    batches = trainer.scene_batches(config, trainer.stream_settings(config.data), stream_parts[2])
+    labels = [label for _ in range(3) for label in (next(batches), batches.last_labels)[1]]
+    assert {label.rpartition(" ")[2] for label in labels} == {"(non)", "(multi-colour)"}
+    assert any("+" in label for label in labels)  # the mosaics' four photo ids
+
+
 @pytest.mark.slow  # three tiny pretraining runs in subprocesses, about two minutes on 2 cores
 def test_a_stream_run_killed_with_9_resumes_with_the_losses_of_one_never_stopped(tmp_path):
     steps = 6

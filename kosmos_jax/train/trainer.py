@@ -170,6 +170,18 @@ def stream_settings(data_config) -> dict | None:
     return settings
 
 
+def scene_batches(config, stream: dict, tokenizer, process_index: int = 0,
+                  process_count: int = 1) -> scene_stream.SceneStream:
+    """This process's training batches from scenes made on the fly (`stream` as `stream_settings` gives it):
+    the build's stages and format, with the stream's own instruction kinds where it names them."""
+    build = batches_lib.build_config(config.data)
+    if "kinds" in stream:
+        build = dataclasses.replace(build, kinds=tuple(stream["kinds"]))
+    return scene_stream.SceneStream(build, tokenizer, photos=stream["photos"], seed=stream["seed"],
+                                    global_batch=config.train.batch_size, process_index=process_index,
+                                    process_count=process_count)
+
+
 def kosmos_task(config, mesh, tx, schedule) -> Task:
     """KOSMOS-E: the built dataset's token batches, the language-model step, decoded grasps."""
     if run_start.is_start(config.init_from):
@@ -183,12 +195,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
     stream = stream_settings(config.data)
     if stream:
         description["data_stream"] = stream
-        stream_build = batches_lib.build_config(config.data)
-        if "kinds" in stream:
-            stream_build = dataclasses.replace(stream_build, kinds=tuple(stream["kinds"]))
-        batches = scene_stream.SceneStream(stream_build, tokenizer, photos=stream["photos"], seed=stream["seed"],
-                                           global_batch=config.train.batch_size, process_index=jax.process_index(),
-                                           process_count=jax.process_count())
+        batches = scene_batches(config, stream, tokenizer, jax.process_index(), jax.process_count())
         describe = batches.describe
     else:
         batches = batches_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
