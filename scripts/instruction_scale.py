@@ -3,7 +3,7 @@
     python scripts/instruction_scale.py --workdir=runs/pretrain/stream_instruct
 
 Prints one JSON line: the norms of the instruction's mean embedding as it is now passed (unit root mean
-square, `connector.instruction_bag`) and unscaled (as runs before 2026-11-27 22:00 passed it), of the
+square, `connector_extensions.instruction_bag`) and unscaled (as runs before 2026-11-27 22:00 passed it), of the
 connector's dense layer applied to each, of the latent queries, and the largest kernel entry.
 """
 
@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
-from kosmos_jax.models.connector import instruction_mean
+from kosmos_jax.models.connector_extensions import instruction_mean
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.train import batches, step
 from kosmos_jax.workdir.run import open_run

@@ -7,7 +7,7 @@ import pytest
 
 from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2
-from kosmos_jax.models.connector import instruction_bag
+from kosmos_jax.models.connector_extensions import instruction_bag
 
 TINY = model_config.TINY
 READS = TINY.replace(connector_instruction=True, latent_query_num=64)
@@ -70,3 +70,22 @@ def test_a_start_with_another_connector_is_refused_by_name():
     with pytest.raises(ValueError, match="connector_instruction False there, True here"):
         check_same_model(TINY, TINY.replace(connector_instruction=True), "runs/start")
     check_same_model(READS, READS, "runs/start")
+
+
+def test_kosmos2s_connector_is_built_without_the_options_and_reads_no_instruction():
+    from flax import nnx
+
+    from kosmos_jax.models.connector import ImageToTextProjection
+    from kosmos_jax.models.connector_extensions import ExtendedProjection, projection
+
+    plain = projection(TINY, nnx.Rngs(0))
+    assert type(plain) is ImageToTextProjection
+    with pytest.raises(ValueError, match="reads no instruction"):
+        plain(_features(), jnp.ones((2, TINY.text.embed_dim)))
+    paths = lambda module: {path for path, _ in nnx.to_flat_state(nnx.state(module, nnx.Param))}
+    for option in (dict(connector_grid_code=2.0), dict(connector_instruction=True)):
+        extended = projection(TINY.replace(**option), nnx.Rngs(0))
+        assert type(extended) is ExtendedProjection
+        added = {path[0] for path in paths(extended) - paths(plain)}
+        assert added == ({"instruction"} if "connector_instruction" in option else set())
+        assert paths(plain) <= paths(extended)  # KOSMOS-2's weights keep their paths

@@ -11,7 +11,7 @@ from flax import nnx
 
 from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2, mesh, weights
-from kosmos_jax.models.connector import cell_centre, cell_index, grasp_cell_tokens, grid_code, grid_side
+from kosmos_jax.models.patch_grid import cell_centre, cell_index, grasp_cell_tokens, grid_code, grid_side
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import loss, optimizer, state, step, trainer
 from kosmos_jax.train.auxiliary import AuxiliaryLosses

@@ -31,7 +31,7 @@ import numpy as np
 from flax import nnx
 
 from kosmos_jax import geometry
-from kosmos_jax.models.connector import cell_index, grasp_cell_tokens, grid_side
+from kosmos_jax.models.patch_grid import cell_index, grasp_cell_tokens, grid_side
 from kosmos_jax.models.decoder import position_ids
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.preprocess import pixels

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from kosmos_jax.models.connector import cell_index, grid_side
+from kosmos_jax.models.patch_grid import cell_index, grid_side
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.train.loss import image_slot_states
 from kosmos_jax.train import batches

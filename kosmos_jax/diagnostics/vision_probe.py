@@ -29,7 +29,7 @@ from flax import nnx
 
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import open_run
-from kosmos_jax.models.connector import cell_centre, cell_index
+from kosmos_jax.models.patch_grid import cell_centre, cell_index
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.models.vision import VisionModel
 from kosmos_jax.train import batches as batches_lib

@@ -1,23 +1,18 @@
-"""`image_to_text_projection`: the latent-query resampler between the vision tower and the decoder.
+"""`image_to_text_projection`: KOSMOS-2's latent-query resampler between the vision tower and the decoder.
 
 Linear (vision width -> text width) on every image token; learned latent queries attend, in one
 multi-head attention with biases, over [projected image tokens ; latent queries]. No residual, no
-LayerNorm, no FFN.
+LayerNorm, no FFN. `pointing_log_probs` gives the attention's log-probabilities, for a loss that
+teaches the queries where to look (`train.pointing_loss`).
 
-With `connector_grid_code` > 0 (not KOSMOS-2; for models trained from scratch) the projected tokens
-are centred on the image's mean patch token and each patch token gets a fixed sin-cos code of its
-grid cell, so a query that attends to one patch carries that patch's position in its slot.
-`pointing_log_probs` gives the attention's log-probabilities, for a loss that teaches the queries
-where to look (`train.pointing_loss`).
+The options of models trained from scratch (a grid code on the patch tokens, queries that read the
+instruction) extend this class in `connector_extensions.py`; this one is KOSMOS-2's alone.
 """
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import nnx
 
 from kosmos_jax.models.config import Kosmos2Config
@@ -34,23 +29,22 @@ class ImageToTextProjection(nnx.Module):
         self.latent_query = nnx.Param(jax.random.normal(rngs.params(), (cfg.latent_query_num, d_text)),
                                       logical_axes=("latents", "embed"))
         self.x_attn = TextAttention(cfg.text, cfg.dtype, rngs, inner_layernorm=False)
-        self.grid_code = cfg.connector_grid_code
-        self.instruction = (dense(d_text, d_text, ("embed", "heads"), rngs, std=0.0, dtype=cfg.dtype)
-                            if cfg.connector_instruction else None)
+
+    def image_tokens(self, features: jax.Array) -> jax.Array:
+        """features [B, 1 + patches, D_vision] -> the projected tokens [B, 1 + patches, D_text]."""
+        return self.dense(features)
+
+    def latent_queries(self, batch: int, dtype, instruction: jax.Array | None = None) -> jax.Array:
+        """[B, Q, D_text]: the same learned queries for every example (KOSMOS-2 reads no instruction)."""
+        if instruction is not None:
+            raise ValueError("KOSMOS-2's connector reads no instruction (that is model.connector_instruction)")
+        return jnp.broadcast_to(self.latent_query[...].astype(dtype), (batch, *self.latent_query.shape))
 
     def queries_and_keys(self, features: jax.Array, instruction: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
         """features [B, 1 + patches, D_vision] (and, for a connector that reads it, the instruction's bag
-        [B, D_text], `instruction_bag`) -> latent queries [B, Q, D_text], keys [B, 1 + patches + Q, D_text]."""
-        tokens = self.dense(features)
-        if self.grid_code:
-            tokens = tokens - tokens[:, 1:].mean(axis=1, keepdims=True)
-            tokens = tokens + self.grid_code * grid_code(features.shape[1] - 1, tokens.shape[-1]).astype(tokens.dtype)
-        queries = jnp.broadcast_to(self.latent_query[...].astype(tokens.dtype), (tokens.shape[0], *self.latent_query.shape))
-        if self.instruction is not None:
-            if instruction is None:
-                raise ValueError("this connector reads the instruction (connector_instruction): give the prompt's "
-                                 "bag of words (Kosmos2.instruction_bag)")
-            queries = queries + self.instruction(instruction.astype(tokens.dtype))[:, None, :]
+        [B, D_text]) -> latent queries [B, Q, D_text], keys [B, 1 + patches + Q, D_text]."""
+        tokens = self.image_tokens(features)
+        queries = self.latent_queries(tokens.shape[0], tokens.dtype, instruction)
         return queries, jnp.concatenate([tokens, queries], axis=1)
 
     def __call__(self, features: jax.Array, instruction: jax.Array | None = None) -> jax.Array:
@@ -65,67 +59,3 @@ class ImageToTextProjection(nnx.Module):
         attention = self.x_attn
         q, k = (split_heads(project(x), attention.num_heads) for project, x in ((attention.q_proj, queries), (attention.k_proj, keys)))
         return jax.nn.log_softmax(attention_scores(q, k), axis=-1)
-
-
-def instruction_mean(table: jax.Array, input_ids: jax.Array, attention_mask: jax.Array, image_mask: jax.Array,
-                     answer_mask: jax.Array | None = None) -> jax.Array:
-    """[B, D] the mean embedding (rows of `table` [V, D]) of each row's real tokens after its image slots
-    and their </image>, and before its first answer token where `answer_mask` [B, T] marks the answer
-    (a training sequence; a prompt holds none); zeros for a row without such tokens (no instruction)."""
-    positions = jnp.arange(input_ids.shape[1])[None, :]
-    last_slot = input_ids.shape[1] - 1 - jnp.argmax(image_mask[:, ::-1], axis=1)
-    chosen = (positions > last_slot[:, None] + 1) & attention_mask.astype(bool)
-    if answer_mask is not None:
-        first_answer = jnp.where(answer_mask.any(axis=1), jnp.argmax(answer_mask, axis=1), input_ids.shape[1])
-        chosen = chosen & (positions < first_answer[:, None])
-    rows = jnp.take(table, input_ids, axis=0).astype(jnp.float32)
-    return jnp.sum(jnp.where(chosen[..., None], rows, 0.0), axis=1) / jnp.maximum(jnp.sum(chosen, axis=1, keepdims=True), 1)
-
-
-def instruction_bag(table: jax.Array, input_ids: jax.Array, attention_mask: jax.Array, image_mask: jax.Array,
-                    answer_mask: jax.Array | None = None) -> jax.Array:
-    """`instruction_mean` scaled to a root mean square of 1 (zeros stay zeros): what the connector reads.
-    Unscaled, the mean of embeddings started at std 0.02 moved the queries (norm ~11) by about 4% after
-    1,500 steps (results/pretrain/README.md)."""
-    mean = instruction_mean(table, input_ids, attention_mask, image_mask, answer_mask)
-    return mean * jax.lax.rsqrt(jnp.mean(mean ** 2, axis=-1, keepdims=True) + 1e-12)
-
-
-def grid_side(patches: int) -> int:
-    """The side of the square patch grid that `patches` tokens form (row-major, as the vision tower lays them out)."""
-    side = math.isqrt(patches)
-    if side * side != patches:
-        raise ValueError(f"{patches} patches do not form a square grid")
-    return side
-
-
-def cell_index(centres: jax.Array, side: int) -> jax.Array:
-    """[B, 2] centres (x, y) in units of the view's side -> [B] row-major index of the patch holding each."""
-    cell = jnp.clip(jnp.floor(centres * side), 0, side - 1).astype(jnp.int32)
-    return cell[:, 1] * side + cell[:, 0]
-
-
-def grasp_cell_tokens(tokens: jax.Array, centres: jax.Array) -> jax.Array:
-    """tokens [B, 1 + patches, D] (the class token first), centres [B, 2] in units of the view's side ->
-    [B, D] each example's token of the patch that holds its centre."""
-    cell = 1 + cell_index(centres, grid_side(tokens.shape[1] - 1))
-    return jnp.take_along_axis(tokens, cell[:, None, None], axis=1)[:, 0]
-
-
-def cell_centre(index: jax.Array, side: int) -> jax.Array:
-    """[B] row-major patch indices -> [B, 2] their centres (x, y) in units of the view's side."""
-    return (jnp.stack([index % side, index // side], axis=-1) + 0.5) / side
-
-
-def grid_code(patches: int, width: int) -> jnp.ndarray:
-    """[1 + patches, width]: a sin-cos code of each patch's cell (x then y) of the square grid, zeros
-    for the class token; frequencies from one to width/8 periods across the grid."""
-    side = grid_side(patches)
-    if width % 4:
-        raise ValueError(f"a grid code needs a width divisible by 4, got {width}")
-    frequencies = 100.0 ** -(np.arange(width // 4) / (width // 4))
-    cells = (np.arange(side) + 0.5) / side * 2 * np.pi
-    y, x = (np.repeat(cells, side), np.tile(cells, side))
-    angles_x, angles_y = x[:, None] * frequencies, y[:, None] * frequencies
-    code = np.concatenate([np.sin(angles_x), np.cos(angles_x), np.sin(angles_y), np.cos(angles_y)], axis=1)
-    return jnp.asarray(np.concatenate([np.zeros((1, width)), code]), jnp.float32)

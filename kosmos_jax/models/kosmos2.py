@@ -14,7 +14,7 @@ from flax import nnx
 from jax._src.interpreters import partial_eval  # private: see _cheap_tracer_errors
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.connector import ImageToTextProjection, instruction_bag
+from kosmos_jax.models.connector_extensions import instruction_bag, projection
 from kosmos_jax.models.decoder import TextForCausalLM, position_ids
 from kosmos_jax.models.vision import VisionModel
 
@@ -25,7 +25,7 @@ class Kosmos2(nnx.Module):
         layout = dict(scan_layers=cfg.scan_layers, remat=cfg.remat, attention=cfg.attention)
         self.text_model = TextForCausalLM(cfg.text, cfg.dtype, rngs, cfg.magneto_gain, **layout)
         self.vision_model = VisionModel(cfg.vision, cfg.dtype, rngs, **layout)
-        self.image_to_text_projection = ImageToTextProjection(cfg, rngs)
+        self.image_to_text_projection = projection(cfg, rngs)
 
     def image_embeds(self, pixels: jax.Array, instruction: jax.Array | None = None) -> jax.Array:
         """pixels [B, H, W, 3] -> [B, latent_query_num, D_text]; `instruction` the prompt's bag of words
@@ -33,7 +33,7 @@ class Kosmos2(nnx.Module):
         return self.image_to_text_projection(self.vision_model(pixels), instruction)
 
     def instruction_bag(self, input_ids, attention_mask, image_mask, answer_mask=None) -> jax.Array | None:
-        """What a connector with connector_instruction reads (connector.instruction_bag); None for the others."""
+        """What a connector with connector_instruction reads (connector_extensions.instruction_bag); None for the others."""
         if not self.config.connector_instruction:
             return None
         table = self.text_model.model.embed_tokens.embedding[...]

@@ -50,22 +50,27 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def run(args: argparse.Namespace) -> dict:
-    """Load, predict, draw: the printed record."""
+def run(image: str, *, workdir: str | None = None, step: int | None = None, pretrained: str | None = None,
+        tokenizer: str | None = None, scheme: str | None = None, instruction: str | None = None,
+        out: str | None = None) -> dict:
+    """Load, predict, draw: the printed record. One of `workdir` (and its `step`) or `pretrained` (and its
+    `tokenizer`, `scheme`) gives the model."""
     from kosmos_jax.predict.images import load_image
     from kosmos_jax.predict.predictor import GraspPredictor
     from kosmos_jax.scoring.drawing import NO_INSTRUCTION, overlay, write_png
 
-    photo = load_image(args.image)  # bad images fail before the model is loaded
-    if args.workdir:
-        predictor = GraspPredictor.from_workdir(args.workdir, args.step)
+    if (workdir is None) == (pretrained is None):
+        raise ValueError("give exactly one of workdir and pretrained")
+    photo = load_image(image)  # bad images fail before the model is loaded
+    if workdir:
+        predictor = GraspPredictor.from_workdir(workdir, step)
     else:
-        predictor = GraspPredictor.from_pretrained(args.pretrained, args.tokenizer, scheme=args.scheme)
-    grasp = predictor.predict(photo, args.instruction)
-    record = {**grasp.to_dict(), "image": args.image, "instruction": args.instruction, "overlay": args.out}
-    if args.out:
+        predictor = GraspPredictor.from_pretrained(pretrained, tokenizer, scheme=scheme)
+    grasp = predictor.predict(photo, instruction)
+    record = {**grasp.to_dict(), "image": image, "instruction": instruction, "overlay": out}
+    if out:
         zoom = max(1.0, 448 / min(photo.shape[:2]))  # small photos enlarged so the caption is legible
-        write_png(args.out, overlay(photo, grasp.rectangle(), (), args.instruction or NO_INSTRUCTION, zoom=zoom))
+        write_png(out, overlay(photo, grasp.rectangle(), (), instruction or NO_INSTRUCTION, zoom=zoom))
     return record
 
 
@@ -84,7 +89,8 @@ def main(argv=None) -> int:
         warnings.simplefilter("always")
         try:
             with contextlib.redirect_stdout(sys.stderr):  # stdout holds the grasp only
-                record = run(args)
+                record = run(args.image, workdir=args.workdir, step=args.step, pretrained=args.pretrained,
+                             tokenizer=args.tokenizer, scheme=args.scheme, instruction=args.instruction, out=args.out)
         except (PredictError, OSError) as error:
             record = None
             message = f"error: {error}"

@@ -14,7 +14,7 @@ import numpy as np
 import optax
 
 from kosmos_jax import geometry
-from kosmos_jax.models.connector import cell_centre, cell_index, grasp_cell_tokens, grid_side
+from kosmos_jax.models.patch_grid import cell_centre, cell_index, grasp_cell_tokens, grid_side
 
 
 def token_sums(logits: jax.Array, tokens: jax.Array, loss_mask: jax.Array) -> dict[str, jax.Array]:

@@ -33,7 +33,7 @@ from flax import nnx
 from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
-from kosmos_jax.models.connector import grid_side
+from kosmos_jax.models.patch_grid import grid_side
 from kosmos_jax.models.decoder import position_ids
 from kosmos_jax.models.kosmos2 import Kosmos2, abstract_model, split_model
 from kosmos_jax.models.layers import dropout_per_example
