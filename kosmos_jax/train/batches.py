@@ -40,10 +40,14 @@ def source_folder(data_config) -> pathlib.Path:
     return folder
 
 
+def kind_names(kinds):
+    """A config's instruction kinds as the build takes them: "non, multi" -> ("non", "multi"); a sequence as it is."""
+    return tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else kinds
+
+
 def build_config(data_config) -> build_lib.BuildConfig:
     settings = data_config.build.to_dict()
-    kinds = settings.pop("kinds")
-    settings["kinds"] = tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else kinds
+    settings["kinds"] = kind_names(settings.pop("kinds"))
     for name in ("annotations", "tokenizer"):
         if settings.get(name):
             path = pathlib.Path(settings[name])

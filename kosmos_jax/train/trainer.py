@@ -163,9 +163,8 @@ def stream_settings(data_config) -> dict | None:
                          f"{data_config.synthetic_seed}: the stream's chunks take seeds seed, seed + 1, ..., and the "
                          "test split's scenes must not be among them")
     settings = {"photos": int(stream.photos), "seed": int(stream.seed)}
-    kinds = stream.get("kinds") or ""
-    if kinds:  # left out at the default, as runs made before the option wrote it
-        single, multi = sample_stage.parse_kinds(kinds.split(","))
+    if stream.get("kinds"):  # left out at the default, as runs made before the option wrote it
+        single, multi = sample_stage.parse_kinds(batches_lib.kind_names(stream.kinds))
         settings["kinds"] = list(single) + [sample_stage.MULTI_PREFIX + k for k in multi]
     return settings
 
