@@ -89,6 +89,10 @@ class SceneStream:
         self._next_number = -1
         self.last_labels: list[str] = []
 
+    def chunk(self, number: int) -> Chunk:
+        """Chunk `number` of this stream, made now (what training reads from it, for inspection)."""
+        return self._make(number)
+
     def _batches_in(self, chunk: Chunk) -> int:
         return len(chunk.labels) // self.global_batch
 
