@@ -72,7 +72,7 @@ class Kosmos2Config:
     magneto_init: bool = True  # scale decoder fc1/fc2/out_proj/v_proj by sqrt(log(2N)) at init
     # Init std of the connector's dense layer; None: text.init_std (0.02), KOSMOS-2's. Its inputs are
     # unit-norm vectors, so at 0.02 a model trained from scratch starts with image embeddings ~30x
-    # below its text embeddings, and in 200 steps learns nothing from the image (tests/test_train_step.py).
+    # below its text embeddings, and in 200 steps learns little from the image (tests/test_train_step.py).
     connector_dense_std: float | None = None
     # Amplitude of a fixed 2-D sin-cos code of each patch's grid cell, added to the connector's image
     # tokens after they are centred on the image's mean patch token; 0: KOSMOS-2's connector. From
