@@ -11,7 +11,7 @@ import kosmos_jax
 ROOT = pathlib.Path(kosmos_jax.__file__).parent
 # Top to bottom; a module may import from its own entry or any entry above it.
 LAYERS = (
-    ("geometry", "grasp_text", "publish", "jax_platforms"),
+    ("geometry", "grasp_text", "publish", "jax_platforms", "commands"),  # commands: how entry points read flags
     ("metrics",),
     ("sources",),  # readers of the photo datasets (Cornell, Jacquard, synthetic scenes) and their splits
     ("augment",),
