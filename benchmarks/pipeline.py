@@ -88,12 +88,10 @@ def main():
     scratch = pathlib.Path(tempfile.mkdtemp(prefix="kosmos_bench_"))
     try:
         source, annotations = source_and_annotations(args, scratch)
-        argv = ["--source", str(source), "--out", str(scratch / "built"), "--protocol", "honest", "--split", "object",
-                "--fold", "0", "--augmentations", str(args.augmentations), "--recipe", "paper"]
-        if annotations:
-            argv += ["--annotations", annotations]
+        config = build.BuildConfig(source=str(source), out=str(scratch / "built"), protocol="honest", split="object",
+                                   fold=0, augmentations=args.augmentations, recipe="paper", annotations=annotations)
         start = time.perf_counter()
-        stats = build.build(build.parse_args(argv))
+        stats = build.build(config)
         build_seconds = time.perf_counter() - start
         train = tfds_builders.open_splits(stats["dataset_dir"])["train"]
         length = int(np.asarray(train[0]["tokens"]).shape[0])

@@ -28,9 +28,9 @@ import pathlib
 import sys
 import time
 
-from absl import app, logging
-from ml_collections import config_flags
+from absl import flags, logging
 
+from kosmos_jax import commands
 from kosmos_jax.sources import cornell
 from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.dataset import views
@@ -46,7 +46,6 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_CORNELL = REPO.parent / "shared" / "data" / "cornell"
 GOAL_POINTS = 50  # issue 21's: the held-out fold's single-object instructions, above the image centre
 FRESH_SPLIT = "fresh photos"  # the `split` of the rows scored on config.fresh_photos
-CONFIG = config_flags.DEFINE_config_file("config", str(REPO / "configs" / "demo.py"), "an ml-collections config file")
 
 
 def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
@@ -237,12 +236,19 @@ def run(config) -> list[dict]:
     return rows
 
 
-def main(argv) -> None:
-    if len(argv) > 1:
-        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.define_config(flag_values, "config", str(REPO / "configs" / "demo.py"), "an ml-collections config file")
+
+
+def demo_command(options) -> int:
     logging.set_verbosity(logging.WARNING)  # orbax and tfds log every file they touch at INFO
-    run(CONFIG.value)
+    run(options.config)
+    return 0
+
+
+def main(argv=None) -> int:
+    return commands.run_command(define_flags, demo_command, argv, prog="python -m kosmos_jax.demo", doc=__doc__)
 
 
 if __name__ == "__main__":
-    app.run(main)
+    sys.exit(main())

@@ -272,7 +272,7 @@ def test_cli_prints_json_summary(cornell_root, kosmos_e_annotations):
 
 def test_cli_reports_broken_file(tmp_path):
     (tmp_path / "pcd0001cpos.txt").write_text("1 2\n3 x\n")
-    result = subprocess.run([sys.executable, "-m", "kosmos_jax.sources.cornell", str(tmp_path), "--no-images"],
+    result = subprocess.run([sys.executable, "-m", "kosmos_jax.sources.cornell", str(tmp_path), "--noimages"],
                             capture_output=True, text=True, cwd=REPO, timeout=120)
     assert result.returncode == 1
     assert "pcd0001cpos.txt, line 2" in result.stderr

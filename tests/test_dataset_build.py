@@ -255,7 +255,7 @@ def test_errors_name_the_input(source, tmp_path):
 
 def test_cli_prints_statistics(source, tmp_path, capsys):
     code = main(["--source", str(source), "--out", str(tmp_path / "out"), "--protocol", "honest", "--split", "image",
-                 "--fold", "3", "--augmentations", "1", "--kinds", "non", "angle", "multi-position", "--seed", "4"])
+                 "--fold", "3", "--augmentations", "1", "--kinds=non,angle,multi-position", "--seed", "4"])
     assert code == 0
     stats = json.loads(capsys.readouterr().out)
     assert set(stats["splits"]["train"]["samples_by_kind"]) == {"non", "angle", "multi-position"}
@@ -442,7 +442,7 @@ def test_a_rerun_reuses_and_overwrite_rebuilds(source, tmp_path, monkeypatch, ca
         assert again["reused"] is True
         assert {k: v for k, v in again.items() if k != "reused"} == {k: v for k, v in first.items() if k != "reused"}
         assert _files(first["dataset_dir"]) == files  # nothing re-written
-        argv = ["--source", str(source), "--out", str(tmp_path / "out"), "--kinds", "non", "angle"]
+        argv = ["--source", str(source), "--out", str(tmp_path / "out"), "--kinds=non,angle"]
         assert main(argv) == 0
         assert json.loads(capsys.readouterr().out)["reused"] is True
         with pytest.raises(AssertionError, match="must not read"):

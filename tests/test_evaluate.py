@@ -424,8 +424,7 @@ def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_
         if "answer" in places:
             assert 1 <= result[name]["answer"]["distinct_test"] <= len(views)
     assert 0 <= result["constant"]["test"] <= 100
-    with pytest.raises(SystemExit):
-        ap.main([f"--workdir={workdir}", "--examples=1"])
+    assert ap.main([f"--workdir={workdir}", "--examples=1"]) == 2
     assert ap.main([f"--workdir={workdir}", "--examples=8", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["step"] == 2
 
@@ -450,9 +449,7 @@ def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workd
     (old / "run.json").write_text(json.dumps(description))
     made_before = evaluate(old, max_examples=8)[0]
     assert made_before["value_window"] == made_before["angle_window"] == 0  # runs made before the settings: greedy, as scored then
-    with pytest.raises(SystemExit):
-        main(["--workdir", str(values_workdir), "--value-window=-1"])
-    assert "--value-window must be at least 0" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["--workdir", str(values_workdir), "--angle-window=128"])
-    assert "--angle-window must be 0 to 127 bins" in capsys.readouterr().err
+    assert main(["--workdir", str(values_workdir), "--value-window=-1"]) == 2
+    assert "flag --value_window=-1: -1 is not a non-negative integer" in capsys.readouterr().err
+    assert main(["--workdir", str(values_workdir), "--angle-window=128"]) == 2
+    assert "flag --angle_window=128: 128 is not an integer in the range [0, 127]" in capsys.readouterr().err

@@ -1,18 +1,18 @@
 """Build an INSTRUCT-GRASP dataset from a Cornell-format folder and print its statistics as JSON.
 
-    python -m kosmos_jax.dataset.build --source DIR --out DIR --protocol honest --split image --fold 0 \
-        [--annotations FILE] [--augmentations 16] [--kinds all] [--seed 0] [--fold-seed 0] \
-        [--validation-fraction 0.1] [--overwrite]
+    python -m kosmos_jax.dataset.build --source=DIR --out=DIR --protocol=honest --split=image --fold=0 \
+        [--annotations=FILE] [--augmentations=16] [--kinds=all] [--seed=0] [--fold_seed=0] \
+        [--validation_fraction=0.1] [--overwrite]
 
 Steps: read the photos (kosmos_jax.sources.cornell) -> words of each object (--annotations: the
 KOSMOS-E file or a synthetic_meta.json; else the folder's synthetic_meta.json; else colour from
 pixels, where a photo whose pixels name no colour loses only its colour kinds, listed in the
 statistics) -> folds over photos or objects BEFORE augmentation (kosmos_jax.sources.splits, drawn
-with --fold-seed only, so builds that differ in --seed, the augmentation and instruction seed,
-share their test folds) -> with --validation-fraction F > 0 (honest protocol only), a validation
+with --fold_seed only, so builds that differ in --seed, the augmentation and instruction seed,
+share their test folds) -> with --validation_fraction F > 0 (honest protocol only), a validation
 split held out of the fold's TRAINING photos (image-wise by photo, object-wise by whole objects;
 never a test photo): F times the training photos, rounded half up, at least 1, object-wise whole
-objects until their photos reach that (`splits.validation_split`), drawn with --fold-seed alone;
+objects until their photos reach that (`splits.validation_split`), drawn with --fold_seed alone;
 F = 0 (the default) makes no validation split and leaves the dataset's identity as before -> views
 (kosmos_jax.dataset.views: honest: --augmentations augmented views per training photo and one
 un-rotated crop per test or validation photo, the same code path and crop for both; paper:
@@ -42,7 +42,6 @@ distinct images stored and the bytes on disk.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import pathlib
@@ -50,8 +49,9 @@ import sys
 from typing import Sequence
 
 import numpy as np
+from absl import flags
 
-from kosmos_jax import grasp_text
+from kosmos_jax import commands, grasp_text
 from kosmos_jax.sources import splits
 from kosmos_jax.dataset import identity as identity_lib
 from kosmos_jax.dataset import images as image_table
@@ -342,7 +342,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
         }
     if "validation" in names and not stats["splits"]["validation"]["examples"]:
         raise ValueError(f"the validation split's {len(views['validation'])} views made no example (its photos' "
-                         "views kept no grasp); raise --validation-fraction")
+                         "views kept no grasp); raise --validation_fraction")
     stats["separation"] = check_separation(ids, config.protocol, config.split)
     stats["identity"] = identity
     stats["word_source"] = words_from.name
@@ -409,50 +409,58 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
 
 # -- command line -------------------------------------------------------------------------------
 
-def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.dataset.build", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--source", required=True, help="Cornell-format folder")
-    parser.add_argument("--out", required=True, help="TFDS data_dir to write into")
-    parser.add_argument("--protocol", choices=("honest", "paper"), default="honest")
-    parser.add_argument("--split", choices=("image", "object"), default="image")
-    parser.add_argument("--fold", type=int, default=0)
-    parser.add_argument("--folds", type=int, default=5)
-    parser.add_argument("--annotations", help="KOSMOS-E instructions-original.json or a synthetic_meta.json")
-    parser.add_argument("--augmentations", type=int, default=1, help="augmented views per (training) photo: the build size")
-    parser.add_argument("--recipe", choices=("random", "paper"), default="random",
-                        help="random: N rotations; paper: N/4 whole-degree rotations x 4 whole-pixel shifts")
-    parser.add_argument("--kinds", nargs="+", help="non, angle, part, name, colour, shape, purpose, strategy, position, "
-                        "multi-<kind>, or single / multi / all (default: all the words allow)")
-    parser.add_argument("--seed", type=int, default=0, help="augmentation, instructions and mosaics (not the folds)")
-    parser.add_argument("--fold-seed", type=int, help="the fold assignment only (default: 0, or the public code's "
-                        f"{splits.PAPER_SEED} in the paper protocol), so builds that differ in --seed share their test folds")
-    parser.add_argument("--train-crop", choices=("gt_centroid", "image_centre", "random"))
-    parser.add_argument("--test-crop", choices=("gt_centroid", "image_centre", "random"))
-    parser.add_argument("--representation", choices=grasp_text.REPRESENTATIONS, default="xya")
-    parser.add_argument("--no-angle-code", action="store_true", help="angles in radians instead of the 256-bin code")
-    parser.add_argument("--joint", action="store_true", help="one example with the whole grasp (default: centre and angle apart)")
-    parser.add_argument("--loss-on", choices=("target", "instruction"), default="target")
-    parser.add_argument("--target-grasp", choices=("first", "each", "random"), default="random")
-    parser.add_argument("--numbers", choices=("digits", "values"), default="digits")
-    parser.add_argument("--max-length", type=int, default=192, help="tokens per example, image slots included")
-    parser.add_argument("--overflow", choices=("error", "truncate"), default="error")
-    parser.add_argument("--tokenizer", help="an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
-    parser.add_argument("--tokenizer-scheme", choices=("fairseq", "native"), default="fairseq",
-                        help="ids of --tokenizer: fairseq (KOSMOS-2's) or native (a tokenizer.model a build or run wrote)")
-    parser.add_argument("--text-pieces", type=int, default=1000, help="pieces of a trained tokenizer besides the symbols")
-    parser.add_argument("--validation-fraction", type=float, default=0.0,
-                        help="share of the training photos (object-wise: whole objects) held out as split "
-                        "'validation', built as the test split is; honest protocol only (default 0: none)")
-    parser.add_argument("--ambiguous-mosaics", action="store_true", help="draw distractors at random, as the paper did")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="rebuild the dataset if its folder exists (default: reuse it and say so)")
-    args = parser.parse_args(argv)
+PROG = "python -m kosmos_jax.dataset.build"
+
+
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "source", None, "Cornell-format folder")
+    define("string", "out", None, "TFDS data_dir to write into")
+    define("enum", "protocol", "honest", "scoring protocol", enum_values=["honest", "paper"])
+    define("enum", "split", "image", "fold scheme", enum_values=["image", "object"])
+    define("integer", "fold", 0, "the test fold")
+    define("integer", "folds", 5, "number of folds")
+    define("string", "annotations", None, "KOSMOS-E instructions-original.json or a synthetic_meta.json")
+    define("integer", "augmentations", 1, "augmented views per (training) photo: the build size")
+    define("enum", "recipe", "random", "random: N rotations; paper: N/4 whole-degree rotations x 4 whole-pixel "
+           "shifts", enum_values=["random", "paper"])
+    define("list", "kinds", None, "comma-separated: non, angle, part, name, colour, shape, purpose, strategy, "
+           "position, multi-<kind>, or single / multi / all (default: all the words allow)")
+    define("integer", "seed", 0, "augmentation, instructions and mosaics (not the folds)")
+    define("integer", "fold_seed", None, "the fold assignment only (default: 0, or the public code's "
+           f"{splits.PAPER_SEED} in the paper protocol), so builds that differ in --seed share their test folds")
+    crops = ["gt_centroid", "image_centre", "random"]
+    define("enum", "train_crop", None, "crop of training views (default: the protocol's)", enum_values=crops)
+    define("enum", "test_crop", None, "crop of test and validation views (default: the protocol's)",
+           enum_values=crops)
+    define("enum", "representation", "xya", "grasp text", enum_values=list(grasp_text.REPRESENTATIONS))
+    define("bool", "angle_code", True, "angles as the 256-bin code (--noangle_code: in radians)")
+    define("bool", "joint", False, "one example with the whole grasp (default: centre and angle apart)")
+    define("enum", "loss_on", "target", "tokens the loss is on", enum_values=["target", "instruction"])
+    define("enum", "target_grasp", "random", "which ground-truth grasp a sample answers with",
+           enum_values=["first", "each", "random"])
+    define("enum", "numbers", "digits", "how coordinates are written", enum_values=["digits", "values"])
+    define("integer", "max_length", 192, "tokens per example, image slots included")
+    define("enum", "overflow", "error", "an example longer than --max_length", enum_values=["error", "truncate"])
+    define("string", "tokenizer", None, "an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
+    define("enum", "tokenizer_scheme", "fairseq", "ids of --tokenizer: fairseq (KOSMOS-2's) or native (a "
+           "tokenizer.model a build or run wrote)", enum_values=["fairseq", "native"])
+    define("integer", "text_pieces", 1000, "pieces of a trained tokenizer besides the symbols")
+    define("float", "validation_fraction", 0.0, "share of the training photos (object-wise: whole objects) held out "
+           "as split 'validation', built as the test split is; honest protocol only (0: none)")
+    define("bool", "ambiguous_mosaics", False, "draw distractors at random, as the paper did")
+    define("bool", "overwrite", False, "rebuild the dataset if its folder exists (default: reuse it and say so)")
+    flags.mark_flags_as_required(["source", "out"], flag_values=flag_values)
+
+
+def build_config(args) -> BuildConfig:
+    """The BuildConfig of parsed flags."""
     return BuildConfig(
         source=args.source, out=args.out, protocol=args.protocol, split=args.split, fold=args.fold, folds=args.folds,
         annotations=args.annotations, augmentations=args.augmentations, recipe=args.recipe,
         kinds=tuple(args.kinds) if args.kinds else None, seed=args.seed, fold_seed=args.fold_seed,
         train_crop=args.train_crop,
-        test_crop=args.test_crop, representation=args.representation, angle_code=not args.no_angle_code,
+        test_crop=args.test_crop, representation=args.representation, angle_code=args.angle_code,
         individual=not args.joint, loss_on=args.loss_on, target_grasp=args.target_grasp, numbers=args.numbers,
         max_length=args.max_length, overflow=args.overflow, tokenizer=args.tokenizer,
         tokenizer_scheme=args.tokenizer_scheme, text_pieces=args.text_pieces,
@@ -461,7 +469,11 @@ def parse_args(argv: Sequence[str] | None = None) -> BuildConfig:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    config = parse_args(argv)
+    return commands.run_command(define_flags, build_command, argv, prog=PROG, doc=__doc__)
+
+
+def build_command(args) -> int:
+    config = build_config(args)
     try:
         stats = build(config)
     except (ValueError, FileNotFoundError, FileExistsError, KeyError) as error:

@@ -22,15 +22,15 @@ angle value tokens (numbers=digits) has no `decoder` place and reads one example
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 
 import jax.numpy as jnp
 import numpy as np
+from absl import flags
 from flax import nnx
 
-from kosmos_jax import geometry
+from kosmos_jax import commands, geometry
 from kosmos_jax.models.patch_grid import cell_index, grasp_cell_tokens, grid_side
 from kosmos_jax.models.decoder import position_ids
 from kosmos_jax.models.kosmos2 import build, split_model
@@ -178,16 +178,22 @@ def angle_probe(workdir, step: int | None = None, examples: int = 3000, ridge: f
     return result
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "a KOSMOS-E training run's folder")
+    define("integer", "step", None, "checkpoint step (default: the newest)")
+    define("integer", "examples", 3000, "training views the readouts are fit on", lower_bound=2)
+    define("float", "ridge", 0.01, "ridge penalty per example, on standardised features")
+    define("bool", "json", False, "print the result as one JSON line")
+    flags.mark_flag_as_required("workdir", flag_values=flag_values)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.angle_probe", description=__doc__.splitlines()[0])
-    parser.add_argument("--workdir", required=True, help="a KOSMOS-E training run's folder")
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--examples", type=int, default=3000, help="training views the readouts are fit on")
-    parser.add_argument("--ridge", type=float, default=0.01, help="ridge penalty per example, on standardised features")
-    parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
-    args = parser.parse_args(argv)
-    if args.examples < 2:
-        parser.error("--examples must be at least 2")
+    return commands.run_command(define_flags, probe_command, argv, prog="python -m kosmos_jax.diagnostics.angle_probe",
+                                doc=__doc__)
+
+
+def probe_command(args) -> int:
     try:
         result = angle_probe(args.workdir, args.step, args.examples, args.ridge)
     except RunError as error:

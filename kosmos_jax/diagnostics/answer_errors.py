@@ -16,14 +16,15 @@ fall in the target's quadrant (`same_quadrant`): whether the model picked the na
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import pathlib
+import sys
 
 import numpy as np
+from absl import flags
 
-from kosmos_jax import geometry
+from kosmos_jax import commands, geometry
 from kosmos_jax.workdir.checkpoints import chosen_step
 from kosmos_jax.workdir.files import RunError, read_description
 from kosmos_jax.text.formatter import FormatConfig, parse_target
@@ -108,20 +109,23 @@ def read_answers(workdir: pathlib.Path, step: int, scored: str = "") -> list[dic
     return [json.loads(line) for line in path.read_text().splitlines() if line]
 
 
-def scored_run_arguments(module: str, doc: str, argv=None, scored: bool = False) -> argparse.Namespace:
-    """--workdir, --step and --json of a command that reads a scored run's answers."""
-    parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.splitlines()[0])
-    parser.add_argument("--workdir", required=True, help="the training run's folder")
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
-    if scored:
-        parser.add_argument("--scored", default="", help="the answers of eval/STEP/SCORED (what evaluate --cornell "
-                            "wrote, e.g. cornell-synthetic-60-seed7) instead of the run's test split")
-    return parser.parse_args(argv)
+def define_scored_run_flags(flag_values: flags.FlagValues) -> None:
+    """--workdir, --step, --scored and --json of a command that reads a scored run's answers."""
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "the training run's folder")
+    define("integer", "step", None, "checkpoint step (default: the newest)")
+    define("string", "scored", "", "the answers of eval/STEP/SCORED (what evaluate --cornell wrote, e.g. "
+           "cornell-synthetic-60-seed7) instead of the run's test split")
+    define("bool", "json", False, "print the figures as one JSON line")
+    flags.mark_flag_as_required("workdir", flag_values=flag_values)
 
 
-def main(argv=None) -> None:
-    args = scored_run_arguments("kosmos_jax.diagnostics.answer_errors", __doc__, argv, scored=True)
+def main(argv=None) -> int:
+    return commands.run_command(define_scored_run_flags, errors_command, argv,
+                                prog="python -m kosmos_jax.diagnostics.answer_errors", doc=__doc__)
+
+
+def errors_command(args) -> None:
     workdir = pathlib.Path(args.workdir)
     try:
         config = FormatConfig(**read_description(workdir)["data_identity"]["format"])
@@ -144,4 +148,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

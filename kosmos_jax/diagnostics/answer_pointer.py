@@ -12,14 +12,16 @@ with its 2 x 2 quadrant (`quadrant`; on a mosaic, the named photo: 25% by chance
 
 from __future__ import annotations
 
-import argparse
 import json
+import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from absl import flags
 from flax import nnx
 
+from kosmos_jax import commands
 from kosmos_jax.models.patch_grid import cell_index, grid_side
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.train.loss import image_slot_states
@@ -90,13 +92,21 @@ def answer_pointer(run: Run, split_name: str, step: int | None = None, batch_siz
     return {"step": step, "split": split_name, **by_scene, "by_kind": hit_shares(pointed, targets, groups, side)}
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.answer_pointer", description=__doc__.splitlines()[0])
-    parser.add_argument("--workdir", required=True, help="the training run's folder")
-    parser.add_argument("--split", default="validation", help="a split of the run's dataset (default: validation)")
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
-    args = parser.parse_args(argv)
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "the training run's folder")
+    define("string", "split", "validation", "a split of the run's dataset")
+    define("integer", "step", None, "checkpoint step (default: the newest)")
+    define("bool", "json", False, "print the figures as one JSON line")
+    flags.mark_flag_as_required("workdir", flag_values=flag_values)
+
+
+def main(argv=None) -> int:
+    return commands.run_command(define_flags, pointer_command, argv,
+                                prog="python -m kosmos_jax.diagnostics.answer_pointer", doc=__doc__)
+
+
+def pointer_command(args) -> None:
     try:
         summary = answer_pointer(open_run(args.workdir), args.split, args.step)
     except RunError as error:
@@ -112,4 +122,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

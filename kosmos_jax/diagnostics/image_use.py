@@ -12,14 +12,15 @@ distribution of the answers, whatever its grasp accuracy. Writes WORKDIR/eval/ST
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
 
 import jax
 import numpy as np
+from absl import flags
 
+from kosmos_jax import commands
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import open_run
@@ -107,15 +108,23 @@ def summary(result: dict) -> str:
     return "\n".join(lines)
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "the training run's folder")
+    define("integer", "step", None, "checkpoint step (default: the newest)")
+    define("string", "split", "test", "a split of the run's dataset")
+    define("integer", "batches", 4, "batches scored (0: the whole split)")
+    define("integer", "batch_size", 16, "examples a batch")
+    define("bool", "json", False, "print the result as one JSON line")
+    flags.mark_flag_as_required("workdir", flag_values=flag_values)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.image_use", description=__doc__.split("\n")[0])
-    parser.add_argument("--workdir", required=True)
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--split", default="test")
-    parser.add_argument("--batches", type=int, default=4, help="batches scored (0: the whole split)")
-    parser.add_argument("--batch-size", type=int, default=16)
-    parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
-    args = parser.parse_args(argv)
+    return commands.run_command(define_flags, image_use_command, argv,
+                                prog="python -m kosmos_jax.diagnostics.image_use", doc=__doc__)
+
+
+def image_use_command(args) -> int:
     try:
         result = image_use(args.workdir, args.step, args.split, args.batches, args.batch_size)
     except (RunError, ValueError) as error:

@@ -20,11 +20,13 @@ from __future__ import annotations
 
 import json
 import pathlib
+import sys
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from kosmos_jax.diagnostics.answer_errors import read_answers, scored_run_arguments
+from kosmos_jax import commands
+from kosmos_jax.diagnostics.answer_errors import define_scored_run_flags, read_answers
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions
@@ -63,7 +65,7 @@ def answered_grasps(instructions: Sequence[Instruction], rows: Sequence[Mapping]
     missing = sorted({i for instruction in instructions for i in instruction.examples.values()} - set(parsed))
     if missing:
         raise RunError(f"answers.jsonl has no answer for {len(missing)} test examples (first {missing[0]}): it was "
-                       "decoded with --max-examples; evaluate the whole split first")
+                       "decoded with --max_examples; evaluate the whole split first")
     return np.stack([combine(instruction, {part: parsed[index] for part, index in instruction.examples.items()})
                      for instruction in instructions])
 
@@ -93,8 +95,12 @@ def scored_records(run, step: int, scored: str) -> tuple[Sequence[Mapping], str]
     return made.records, "honest"
 
 
-def main(argv=None) -> None:
-    args = scored_run_arguments("kosmos_jax.diagnostics.part_oracles", __doc__, argv, scored=True)
+def main(argv=None) -> int:
+    return commands.run_command(define_scored_run_flags, oracles_command, argv,
+                                prog="python -m kosmos_jax.diagnostics.part_oracles", doc=__doc__)
+
+
+def oracles_command(args) -> None:
     workdir = pathlib.Path(args.workdir)
     try:
         run = open_run(workdir)
@@ -116,4 +122,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

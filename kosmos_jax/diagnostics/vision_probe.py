@@ -16,7 +16,6 @@ memorising the training photos.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -25,8 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from absl import flags
 from flax import nnx
 
+from kosmos_jax import commands
 from kosmos_jax.workdir.files import RunError
 from kosmos_jax.workdir.run import open_run
 from kosmos_jax.models.patch_grid import cell_centre, cell_index
@@ -130,16 +131,23 @@ def vision_probe(workdir, steps: int = 300, readout: str = "patches", batch_size
             "centres_px": {"train": spread(seen), "test": spread(tested)}}  # where the answers lie in the views
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "a KOSMOS-E run: its config, dataset and splits")
+    define("integer", "steps", 300, "training steps of the probe")
+    define("enum", "readout", "patches", "what the probe reads", enum_values=list(READOUTS))
+    define("integer", "batch_size", 32, "examples a step")
+    define("float", "lr", 1e-4, "the probe's learning rate")
+    define("bool", "json", False, "print the result as one JSON line")
+    flags.mark_flag_as_required("workdir", flag_values=flag_values)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.diagnostics.vision_probe",
-                                     description=__doc__.split("\n")[0])
-    parser.add_argument("--workdir", required=True, help="a KOSMOS-E run: its config, dataset and splits")
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--readout", choices=READOUTS, default="patches")
-    parser.add_argument("--batch-size", type=int, default=32)
-    parser.add_argument("--lr", type=float, default=1e-4)
-    parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
-    args = parser.parse_args(argv)
+    return commands.run_command(define_flags, probe_command, argv, prog="python -m kosmos_jax.diagnostics.vision_probe",
+                                doc=__doc__)
+
+
+def probe_command(args) -> int:
     started = time.time()
     try:
         result = vision_probe(args.workdir, args.steps, args.readout, args.batch_size, args.lr,

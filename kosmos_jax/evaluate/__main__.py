@@ -1,7 +1,7 @@
 """Score a trained run's grasps from its greedy answers, with and without the grasp grammar.
 
     python -m kosmos_jax.evaluate --workdir=runs/demo [--step=N] [--split=test] [--json]
-        [--batch-size=16] [--max-examples=0] [--overlays=N]
+        [--batch_size=16] [--max_examples=0] [--overlays=N]
     python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
 
 Writes WORKDIR/eval/STEP/results.json, results.md and answers.jsonl (one line per example: both
@@ -35,11 +35,13 @@ experiment runner call directly; this module parses the flags and writes and pri
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import sys
 
+from absl import flags
+
+from kosmos_jax import commands
 from kosmos_jax.evaluate.overlays import write_overlays
 from kosmos_jax.evaluate.run_scores import evaluate, write
 from kosmos_jax.models.value_decoding import MAX_ANGLE_WINDOW
@@ -47,46 +49,36 @@ from kosmos_jax.scoring.tally import markdown
 from kosmos_jax.workdir.files import RunError
 
 
-def kind_names(text: str) -> tuple[str, ...]:
-    """"non, single" -> ("non", "single")."""
-    return tuple(k.strip() for k in text.split(",") if k.strip())
-
-
-def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.evaluate", description=__doc__.splitlines()[0])
-    parser.add_argument("--workdir", required=True, help="the training run's folder")
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: the newest)")
-    parser.add_argument("--split", default="test", help="split of the run's dataset (default: test)")
-    parser.add_argument("--cornell", default=None, help="score every photo of this Cornell-format folder instead")
-    parser.add_argument("--kinds", type=kind_names, default="non",
-                        help="instruction kinds for --cornell, comma-separated, as the build names them (default: non)")
-    parser.add_argument("--batch-size", type=int, default=16)
-    parser.add_argument("--max-examples", type=int, default=0, help="decode at most this many examples (0: all)")
-    parser.add_argument("--value-window", type=int, default=None, metavar="N",
-                        help="read coordinate value tokens as the local mean within N values of the mode "
-                             "(0: greedy; default: the run's config.decode.value_window, 0 for runs made before it)")
-    parser.add_argument("--angle-window", type=int, default=None, metavar="N",
-                        help="read angle tokens as the circular local mean within N bins of the mode (0: the mode; "
-                             "default: the run's config.decode.angle_window, 0 for runs made before it)")
-    parser.add_argument("--json", action="store_true", help="print results.json as one line on stdout")
-    parser.add_argument("--overlays", type=int, default=0, metavar="N",
-                        help="draw N scored views of each instruction kind to eval/STEP/overlays/KIND.png (overlays.py)")
-    args = parser.parse_args(argv)
-    if args.batch_size < 1 or args.max_examples < 0:
-        parser.error("--batch-size must be positive and --max-examples at least 0")
-    if args.value_window is not None and args.value_window < 0:
-        parser.error("--value-window must be at least 0")
-    if args.angle_window is not None and not 0 <= args.angle_window <= MAX_ANGLE_WINDOW:
-        parser.error(f"--angle-window must be 0 to {MAX_ANGLE_WINDOW} bins")
-    return args
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "the training run's folder")
+    define("integer", "step", None, "checkpoint step (default: the newest)")
+    define("string", "split", "test", "split of the run's dataset")
+    define("string", "cornell", None, "score every photo of this Cornell-format folder instead")
+    define("list", "kinds", ["non"], "instruction kinds for --cornell, comma-separated, as the build names them")
+    define("integer", "batch_size", 16, "examples decoded at once", lower_bound=1)
+    define("integer", "max_examples", 0, "decode at most this many examples (0: all)", lower_bound=0)
+    define("integer", "value_window", None, "N: read coordinate value tokens as the local mean within N values of "
+           "the mode (0: greedy; default: the run's config.decode.value_window, 0 for runs made before it)",
+           lower_bound=0)
+    define("integer", "angle_window", None, "N: read angle tokens as the circular local mean within N bins of the "
+           "mode (0: the mode; default: the run's config.decode.angle_window, 0 for runs made before it)",
+           lower_bound=0, upper_bound=MAX_ANGLE_WINDOW)
+    define("bool", "json", False, "print results.json as one line on stdout")
+    define("integer", "overlays", 0, "N: draw N scored views of each instruction kind to "
+           "eval/STEP/overlays/KIND.png (overlays.py)", lower_bound=0)
+    flags.mark_flag_as_required("workdir", flag_values=flag_values)
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
+    return commands.run_command(define_flags, evaluate_command, argv, prog="python -m kosmos_jax.evaluate", doc=__doc__)
+
+
+def evaluate_command(args) -> int:
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
             results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split, cornell=args.cornell,
-                                             kinds=args.kinds, batch_size=args.batch_size,
+                                             kinds=tuple(args.kinds), batch_size=args.batch_size,
                                              max_examples=args.max_examples, value_window=args.value_window,
                                              angle_window=args.angle_window)
             write(results, rows, folder)

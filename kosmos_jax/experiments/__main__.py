@@ -20,29 +20,38 @@ import json
 import shlex
 import sys
 
-from absl import app, flags, logging
-from ml_collections import config_flags
+from absl import flags, logging
+
+from kosmos_jax import commands
+
+PROG = "python -m kosmos_jax.experiments"
 
 
-def define_flags() -> None:
-    """Defined only when run as a command, so importing this module defines no absl flag."""
-    config_flags.DEFINE_config_file("config", None, "an experiment config, e.g. configs/experiments/table1.py:cpu")
-    flags.DEFINE_string("workdir", None, "the experiment's folder: one run folder per arm and fold, results.json")
-    flags.DEFINE_bool("aggregate_only", False, "only aggregate the folds recorded so far")
-    flags.DEFINE_bool("check_only", False, "build every arm's config and model shapes; train nothing")
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.define_config(flag_values, "config", None, "an experiment config, e.g. configs/experiments/table1.py:cpu")
+    flags.DEFINE_string("workdir", None, "the experiment's folder: one run folder per arm and fold, results.json",
+                        flag_values=flag_values)
+    flags.DEFINE_bool("aggregate_only", False, "only aggregate the folds recorded so far", flag_values=flag_values)
+    flags.DEFINE_bool("check_only", False, "build every arm's config and model shapes; train nothing",
+                      flag_values=flag_values)
     flags.DEFINE_string("records_from", None, "a folder of fold records (as --records_to writes) to copy into "
-                        "the workdir first: those folds are skipped and aggregated")
-    flags.DEFINE_string("records_to", None, "a folder to copy the workdir's fold records into at the end")
-    flags.mark_flags_as_required(["config", "workdir"])
+                        "the workdir first: those folds are skipped and aggregated", flag_values=flag_values)
+    flags.DEFINE_string("records_to", None, "a folder to copy the workdir's fold records into at the end",
+                        flag_values=flag_values)
+    flags.mark_flags_as_required(["config", "workdir"], flag_values=flag_values)
 
 
-def command_line(argv: list[str]) -> str:
-    return " ".join(["python -m kosmos_jax.experiments", *(shlex.quote(a) for a in argv[1:])])
+def command_line(arguments: list[str]) -> str:
+    return " ".join([PROG, *(shlex.quote(a) for a in arguments)])
 
 
-def main(argv) -> int:
-    if len(argv) > 1:
-        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+def main(argv=None) -> int:
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    return commands.run_command(define_flags, lambda options: experiments_command(options, command_line(arguments)),
+                                arguments, prog=PROG, doc=__doc__)
+
+
+def experiments_command(options, command: str) -> int:
     logging.set_verbosity(logging.WARNING)
     from kosmos_jax.experiments import carried
     from kosmos_jax.experiments.aggregate import write_results
@@ -50,8 +59,7 @@ def main(argv) -> int:
     from kosmos_jax.experiments.runner import SweepStopped, run_experiment
     from kosmos_jax.experiments.spec import ExperimentError
 
-    options = flags.FLAGS
-    config, command = options.config, command_line(sys.argv)
+    config = options.config
     try:
         if options.check_only:
             for report in check_experiment(config):
@@ -85,5 +93,4 @@ def main(argv) -> int:
 
 
 if __name__ == "__main__":
-    define_flags()
-    app.run(main)
+    sys.exit(main())

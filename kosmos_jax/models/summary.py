@@ -5,12 +5,14 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
+import sys
 
+from absl import flags
 from flax import nnx
 
+from kosmos_jax import commands
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.kosmos2 import abstract_model
 
@@ -31,12 +33,17 @@ def summarize(cfg: config_lib.Kosmos2Config) -> dict:
     return {"total": sum(parts.values()), "parts": dict(sorted(parts.items()))}
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", default="kosmos2", choices=sorted(config_lib.SIZES))
-    args = parser.parse_args(argv)
-    print(json.dumps({"size": args.size, **summarize(config_lib.get_config(args.size))}, indent=2))
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.definer(flag_values)("enum", "size", "kosmos2", "a model size of models/config.py",
+                                  enum_values=sorted(config_lib.SIZES))
+
+
+def main(argv=None) -> int:
+    return commands.run_command(
+        define_flags, lambda args: print(json.dumps({"size": args.size, **summarize(config_lib.get_config(args.size))},
+                                                    indent=2)),
+        argv, prog="python -m kosmos_jax.models.summary", doc=__doc__)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

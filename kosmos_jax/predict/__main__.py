@@ -13,7 +13,6 @@ image (grey, RGBA, 16-bit) print `warning: ...`.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import math
@@ -21,32 +20,36 @@ import pathlib
 import sys
 import warnings
 
+from absl import flags
+
+from kosmos_jax import commands
 from kosmos_jax.predict.errors import PredictError
 from kosmos_jax.workdir.pretrained import FORMAT_FILE
 
 
-def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="kosmos-grasp predict", description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.splitlines()[2:]))
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--workdir", help="a training run's folder (run.json, tokenizer.model, checkpoints/)")
-    source.add_argument("--pretrained", help="an imported KOSMOS-2/KOSMOS-E folder (config.json, model.safetensors)")
-    parser.add_argument("--step", type=int, default=None, help="checkpoint step of --workdir (default: the newest)")
-    parser.add_argument("--tokenizer", help=f"with --pretrained: its SentencePiece model file (default: the "
-                                            f"folder's tokenizer.model, when it holds {FORMAT_FILE})")
-    parser.add_argument("--scheme", default=None, choices=("fairseq", "native"),
-                        help=f"with --pretrained: the tokenizer's ids (fairseq: KOSMOS-2's; native: this project's; "
-                             f"default: {FORMAT_FILE}'s, else fairseq)")
-    parser.add_argument("--image", required=True, help="the photo (PNG, JPEG, ...), any size")
-    parser.add_argument("--instruction", default=None,
-                        help="what to grasp, e.g. 'Grasp the red mug.' (omit it for no instruction: NON)")
-    parser.add_argument("--out", default=None, help="write the overlay PNG here")
-    parser.add_argument("--json", action="store_true", help="print the grasp as one JSON line")
-    args = parser.parse_args(argv)
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "a training run's folder (run.json, tokenizer.model, checkpoints/)")
+    define("string", "pretrained", None, "an imported KOSMOS-2/KOSMOS-E folder (config.json, model.safetensors)")
+    define("integer", "step", None, "checkpoint step of --workdir (default: the newest)")
+    define("string", "tokenizer", None, f"with --pretrained: its SentencePiece model file (default: the folder's "
+           f"tokenizer.model, when it holds {FORMAT_FILE})")
+    define("enum", "scheme", None, f"with --pretrained: the tokenizer's ids (fairseq: KOSMOS-2's; native: this "
+           f"project's; default: {FORMAT_FILE}'s, else fairseq)", enum_values=["fairseq", "native"])
+    define("string", "image", None, "the photo (PNG, JPEG, ...), any size")
+    define("string", "instruction", None, "what to grasp, e.g. 'Grasp the red mug.' (omit it for no instruction: NON)")
+    define("string", "out", None, "write the overlay PNG here")
+    define("bool", "json", False, "print the grasp as one JSON line")
+    flags.mark_flags_as_mutual_exclusive(["workdir", "pretrained"], required=True, flag_values=flag_values)
+    flags.mark_flag_as_required("image", flag_values=flag_values)
+
+
+def checked_options(args):
+    """The flags, with what one flag cannot check alone refused."""
     if args.pretrained and not args.tokenizer and not (pathlib.Path(args.pretrained) / FORMAT_FILE).is_file():
-        parser.error(f"--pretrained={args.pretrained} holds no {FORMAT_FILE} (python -m kosmos_jax.workdir.export "
-                     "writes one): give --tokenizer, the SentencePiece model file its weights were trained with")
+        raise commands.UsageError(f"--pretrained={args.pretrained} holds no {FORMAT_FILE} (python -m "
+                                  "kosmos_jax.workdir.export writes one): give --tokenizer, the SentencePiece model "
+                                  "file its weights were trained with")
     return args
 
 
@@ -84,7 +87,11 @@ def describe(record: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
+    return commands.run_command(define_flags, predict_command, argv, prog="kosmos-grasp predict", doc=__doc__)
+
+
+def predict_command(args) -> int:
+    args = checked_options(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:

@@ -18,14 +18,13 @@ Photos come sorted by id, which is the order KOSMOS-E's annotation keys follow. 
 `load_images=False` the Photo's `rgb` and `depth` are None (only labels are read); Photo.height and
 Photo.width then do not work.
 
-    python -m kosmos_jax.sources.cornell ROOT [--no-images] [--kosmos-e PATH]
+    python -m kosmos_jax.sources.cornell ROOT [--noimages] [--kosmos_e=PATH]
 
 prints a JSON summary of the data set under ROOT.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
@@ -36,8 +35,9 @@ from typing import Iterable, Iterator, Sequence
 
 import cv2
 import numpy as np
+from absl import flags
 
-from kosmos_jax import geometry
+from kosmos_jax import commands, geometry
 from kosmos_jax.sources import kosmos_e_annotations, objects, text_file
 from kosmos_jax.sources.cornell_set import FULL_SET_IDS
 from kosmos_jax.sources.photo import Photo
@@ -273,15 +273,22 @@ def summarize(root: str | pathlib.Path, *, load_images: bool = True, object_map=
     return summary
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("bool", "images", True, "read the photos too (--noimages: the labels only)")
+    define("string", "object_map", "auto", "z.txt path (auto: found under ROOT)")
+    define("string", "kosmos_e", None, "instructions-original.json to check alignment")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Summarise a Cornell-format grasp data set as JSON.")
-    parser.add_argument("root", help="folder with 01..10 sub-folders or pcdNNNN files")
-    parser.add_argument("--no-images", action="store_true", help="read the labels only")
-    parser.add_argument("--object-map", default="auto", help="z.txt path (default: found under root)")
-    parser.add_argument("--kosmos-e", default=None, help="instructions-original.json to check alignment")
-    args = parser.parse_args(argv)
+    return commands.run_command(define_flags, summary_command, argv, prog="python -m kosmos_jax.sources.cornell",
+                                doc="Summarise a Cornell-format grasp data set (ROOT: a folder with 01..10 "
+                                    "sub-folders or pcdNNNN files) as JSON.", positional=("root",))
+
+
+def summary_command(args) -> int:
     try:
-        summary = summarize(args.root, load_images=not args.no_images, object_map=args.object_map,
+        summary = summarize(args.root, load_images=args.images, object_map=args.object_map,
                             kosmos_e=args.kosmos_e, progress=True)
     except (ValueError, FileNotFoundError, KeyError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -18,7 +18,6 @@ unless --overwrite; a file that cannot be read stops it with one line naming the
 
 from __future__ import annotations
 
-import argparse
 import os
 import pathlib
 import re
@@ -28,7 +27,9 @@ from typing import Sequence
 import cv2
 import numpy as np
 import tifffile
+from absl import flags
 
+from kosmos_jax import commands
 from kosmos_jax.sources import text_file
 from kosmos_jax.sources.cornell import CornellFormatError
 
@@ -210,12 +211,17 @@ def find_point_clouds(root: str | pathlib.Path) -> list[pathlib.Path]:
     return found
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.definer(flag_values)("bool", "overwrite", False, "rewrite existing pcdNNNNd.tiff files")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description="Write GG-CNN's depth images pcdNNNNd.tiff from the Cornell point clouds pcdNNNN.txt.")
-    parser.add_argument("root", help="Cornell folder (the pcdNNNN.txt files may be in sub-folders)")
-    parser.add_argument("--overwrite", action="store_true", help="rewrite existing pcdNNNNd.tiff files")
-    args = parser.parse_args(argv)
+    return commands.run_command(define_flags, depth_command, argv, prog="python -m kosmos_jax.sources.cornell_depth",
+                                doc="Write GG-CNN's depth images pcdNNNNd.tiff from the Cornell point clouds "
+                                    "pcdNNNN.txt under ROOT (in sub-folders or not).", positional=("root",))
+
+
+def depth_command(args) -> int:
     written = kept = 0
     try:
         clouds = find_point_clouds(args.root)

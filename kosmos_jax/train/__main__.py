@@ -6,23 +6,24 @@ resumes from the newest checkpoint, and a finished run says so and exits 0.
 
 import sys
 
-from absl import app, flags, logging
-from ml_collections import config_flags
+from absl import flags, logging
 
-config_flags.DEFINE_config_file("config", None, "an ml-collections config file, e.g. configs/kosmos_e.py:tiny",
-                                lock_config=True)
-flags.DEFINE_string("workdir", None, "the run's folder: checkpoints, metrics.jsonl, TensorBoard files")
-flags.mark_flags_as_required(["config", "workdir"])
+from kosmos_jax import commands
 
 
-def main(argv):
-    if len(argv) > 1:
-        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.define_config(flag_values, "config", None, "an ml-collections config file, e.g. configs/kosmos_e.py:tiny")
+    flags.DEFINE_string("workdir", None, "the run's folder: checkpoints, metrics.jsonl, TensorBoard files",
+                        flag_values=flag_values)
+    flags.mark_flags_as_required(["config", "workdir"], flag_values=flag_values)
+
+
+def train_command(options) -> int:
     logging.set_verbosity(logging.WARNING)  # orbax and tfds log every file they touch at INFO
     from kosmos_jax.train.trainer import NonFiniteError, RunMismatchError, train
 
     try:
-        summary = train(flags.FLAGS.config, flags.FLAGS.workdir)
+        summary = train(options.config, options.workdir)
     except (NonFiniteError, RunMismatchError, FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
@@ -31,5 +32,9 @@ def main(argv):
     return 0
 
 
+def main(argv=None) -> int:
+    return commands.run_command(define_flags, train_command, argv, prog="python -m kosmos_jax.train", doc=__doc__)
+
+
 if __name__ == "__main__":
-    app.run(main)
+    sys.exit(main())

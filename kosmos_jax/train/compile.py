@@ -29,9 +29,9 @@ from collections.abc import Callable, Sequence
 import jax
 import jax.numpy as jnp
 import ml_collections
-from absl import app, flags
-from ml_collections import config_flags
+from absl import flags
 
+from kosmos_jax import commands
 from kosmos_jax.models import config as model_sizes
 from kosmos_jax.models.flops import TrainFlops, train_flops, xla_flops
 from kosmos_jax.models.kosmos2 import param_count
@@ -327,15 +327,14 @@ def format_table(plans: Sequence[dict]) -> str:
     return "\n".join([lines[0], "-" * len(lines[0]), *lines[1:]])
 
 
-def define_flags() -> None:
-    """The command's flags, defined only when it runs as a command: a module that defines absl flags
-    on import clashes with any other that does (the demo's --config) in one process."""
-    config_flags.DEFINE_config_file("config", None, "an ml-collections config file (configs/kosmos_e.py:VARIANT)",
-                                    lock_config=True)
-    flags.DEFINE_string("topology", None, "cpu:N or a TPU topology such as v5e:2x4, v4:2x2x1, v5e:16x16")
-    flags.DEFINE_bool("plan", False, "compile for every topology of kosmos_jax/train/plan.py, each with its mesh")
-    flags.DEFINE_bool("json", False, "print JSON (one object a line) instead of the table")
-    flags.mark_flag_as_required("config")
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.define_config(flag_values, "config", None, "an ml-collections config file (configs/kosmos_e.py:VARIANT)")
+    flags.DEFINE_string("topology", None, "cpu:N or a TPU topology such as v5e:2x4, v4:2x2x1, v5e:16x16",
+                        flag_values=flag_values)
+    flags.DEFINE_bool("plan", False, "compile for every topology of kosmos_jax/train/plan.py, each with its mesh",
+                      flag_values=flag_values)
+    flags.DEFINE_bool("json", False, "print JSON (one object a line) instead of the table", flag_values=flag_values)
+    flags.mark_flag_as_required("config", flag_values=flag_values)
 
 
 def planned_runs(config: ml_collections.ConfigDict, topology_name: str | None,
@@ -353,9 +352,7 @@ def planned_runs(config: ml_collections.ConfigDict, topology_name: str | None,
     return [(config, topology)]
 
 
-def main(argv: Sequence[str]) -> None:
-    del argv
-    options = flags.FLAGS
+def compile_command(options) -> int:
     plans = []
     try:
         for config, topology in planned_runs(options.config, options.topology, options.plan):
@@ -366,11 +363,17 @@ def main(argv: Sequence[str]) -> None:
             elif options.plan:
                 print(f"compiled for {topology.name} in {plans[-1]['compile_s']:.0f} s", file=sys.stderr, flush=True)
     except ValueError as error:
-        sys.exit(f"compile: {error}")
+        print(f"compile: {error}", file=sys.stderr)
+        return 1
     if not options.json:
         print(format_table(plans), flush=True)
+    return 0
+
+
+def main(argv=None) -> int:
+    return commands.run_command(define_flags, compile_command, argv, prog="python -m kosmos_jax.train.compile",
+                                doc=__doc__)
 
 
 if __name__ == "__main__":
-    define_flags()
-    app.run(main)
+    sys.exit(main())

@@ -18,9 +18,11 @@ ignored, so the trainer's command line works unchanged.
 
 from __future__ import annotations
 
-from absl import app, flags
-from ml_collections import config_flags
+import sys
 
+from absl import flags
+
+from kosmos_jax import commands
 from kosmos_jax.train import distributed
 
 COLUMNS = 4
@@ -53,15 +55,15 @@ def check() -> bool:
     return ok
 
 
-def main(argv: list[str]) -> None:
-    if len(argv) > 1:
-        raise app.UsageError(f"unexpected arguments: {argv[1:]}")
-    if not check():
-        raise SystemExit(1)
+def define_flags(flag_values: flags.FlagValues) -> None:
+    commands.define_config(flag_values, "config", None, "accepted and ignored (the trainer's command line works)")
+    flags.DEFINE_string("workdir", None, "accepted and ignored", flag_values=flag_values)
+
+
+def main(argv=None) -> int:
+    return commands.run_command(define_flags, lambda options: 0 if check() else 1, argv,
+                                prog="python -m kosmos_jax.train.distributed_check", doc=__doc__)
 
 
 if __name__ == "__main__":
-    # defined here, not on import: absl flags defined by two imported modules clash
-    config_flags.DEFINE_config_file("config", None, "accepted and ignored (the trainer's command line works)")
-    flags.DEFINE_string("workdir", None, "accepted and ignored")
-    app.run(main)
+    sys.exit(main())

@@ -15,15 +15,16 @@ refuses rather than compute another model; training starts from any such folder 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import pathlib
 import shutil
 import sys
 
 import jax
+from absl import flags
 from flax import nnx
 
+from kosmos_jax import commands
 from kosmos_jax.models import weights
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
@@ -53,12 +54,20 @@ def export_pretrained(workdir, folder, step: int | None = None, max_shard_bytes:
     return step
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "workdir", None, "a KOSMOS-E training run's folder")
+    define("string", "out", None, "the folder to write (new or empty)")
+    define("integer", "step", None, "the checkpoint to export (default: the newest)")
+    flags.mark_flags_as_required(["workdir", "out"], flag_values=flag_values)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.workdir.export", description=__doc__.splitlines()[0])
-    parser.add_argument("--workdir", required=True, help="a KOSMOS-E training run's folder")
-    parser.add_argument("--out", required=True, help="the folder to write (new or empty)")
-    parser.add_argument("--step", type=int, default=None, help="the checkpoint to export (default: the newest)")
-    args = parser.parse_args(argv)
+    return commands.run_command(define_flags, export_command, argv, prog="python -m kosmos_jax.workdir.export",
+                                doc=__doc__)
+
+
+def export_command(args) -> int:
     try:
         step = export_pretrained(args.workdir, args.out, args.step)
     except (OSError, ValueError) as error:  # workdir.files.RunError is a FileNotFoundError

@@ -32,7 +32,6 @@ objects.py; drawing and depth: render.py; grasp rectangles: grasps.py (this pack
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
@@ -45,8 +44,9 @@ import time
 import cv2
 import numpy as np
 import tifffile
+from absl import flags
 
-from kosmos_jax import geometry
+from kosmos_jax import commands, geometry
 from kosmos_jax.sources import cornell
 from kosmos_jax.sources.synthetic import grasps as grasps_lib
 from kosmos_jax.sources.synthetic.objects import CATEGORIES, ObjectSpec, place, pose_matrix, sample_object
@@ -335,23 +335,27 @@ def read_meta(root) -> dict[str, dict]:
     return data["photos"]
 
 
+def define_flags(flag_values: flags.FlagValues) -> None:
+    define = commands.definer(flag_values)
+    define("string", "out", None, "dataset folder (created)")
+    define("integer", "photos", None, f"number of photos, 1..{MAX_PHOTOS}", lower_bound=1, upper_bound=MAX_PHOTOS)
+    define("integer", "seed", 0, "non-negative integer", lower_bound=0)
+    define("bool", "overwrite", False, "replace a synthetic dataset already in --out")
+    define("bool", "quiet", False, "no progress on stderr")
+    flags.mark_flags_as_required(["out", "photos"], flag_values=flag_values)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m kosmos_jax.sources.synthetic", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True, type=pathlib.Path, help="dataset folder (created)")
-    parser.add_argument("--photos", required=True, type=int, help=f"number of photos, 1..{MAX_PHOTOS}")
-    parser.add_argument("--seed", type=int, default=0, help="non-negative integer (default 0)")
-    parser.add_argument("--overwrite", action="store_true", help="replace a synthetic dataset already in --out")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    args = parser.parse_args(argv)
-    if not 1 <= args.photos <= MAX_PHOTOS:
-        parser.error(f"--photos must be in [1, {MAX_PHOTOS}], got {args.photos}")
-    if args.seed < 0:
-        parser.error(f"--seed must be non-negative, got {args.seed}")
+    return commands.run_command(define_flags, write_command, argv, prog="python -m kosmos_jax.sources.synthetic",
+                                doc=__doc__)
+
+
+def write_command(args) -> int:
     try:
-        summary = write_dataset(args.out, args.photos, args.seed, overwrite=args.overwrite,
+        summary = write_dataset(pathlib.Path(args.out), args.photos, args.seed, overwrite=args.overwrite,
                                 progress=not args.quiet and args.photos >= 20)
     except ValueError as error:
-        parser.error(str(error))
+        raise commands.UsageError(str(error)) from None
     print(f"wrote {summary['photos']} photos of {summary['objects']} objects "
           f"({len(summary['categories'])} categories) to {args.out} in {summary['seconds']} s", file=sys.stderr)
     return 0
