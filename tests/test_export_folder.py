@@ -96,6 +96,7 @@ def photo(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_the_export_holds_the_extended_config_the_tokenizer_and_the_runs_text_format(grid_run, exported):
     assert sorted(p.name for p in exported.iterdir()) == ["config.json", "kosmos_e.json", "model.safetensors",
                                                          "tokenizer.model"]
@@ -113,6 +114,7 @@ def test_the_export_holds_the_extended_config_the_tokenizer_and_the_runs_text_fo
     assert (exported / "tokenizer.model").read_bytes() == (grid_run / "tokenizer.model").read_bytes()
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_predict_on_the_folder_alone_answers_as_the_run(grid_run, exported, photo):
     asked = (f"--image={photo}", "--instruction=Grasp the red mug.", "--json")
     from_run = run_module("kosmos_jax.predict", f"--workdir={grid_run}", *asked)
@@ -122,6 +124,7 @@ def test_predict_on_the_folder_alone_answers_as_the_run(grid_run, exported, phot
     assert json.loads(from_folder.stdout) == json.loads(from_run.stdout)
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_a_folder_without_kosmos_e_json_needs_the_tokenizer(exported, photo, tmp_path):
     bare = tmp_path / "bare"
     shutil.copytree(exported, bare, ignore=shutil.ignore_patterns("kosmos_e.json"))
@@ -131,6 +134,7 @@ def test_a_folder_without_kosmos_e_json_needs_the_tokenizer(exported, photo, tmp
     assert "holds no kosmos_e.json" in last and "give --tokenizer" in last
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_the_export_command_refuses_bad_input_in_one_line(grid_run, exported, tmp_path):
     for args, says in (([f"--workdir={tmp_path / 'nowhere'}", f"--out={tmp_path / 'out'}"], "not a training run"),
                        ([f"--workdir={grid_run}", f"--out={exported}"], "not an empty folder"),

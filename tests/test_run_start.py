@@ -43,6 +43,7 @@ def task_of(config):
     return trainer.make_task(config, mesh, tx, schedule)
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_a_finetune_starts_from_the_named_checkpoint_with_its_tokenizer(pretrained, tmp_path):
     config = finetune_config(pretrained, tmp_path, init_step=1)
     task = task_of(config)
@@ -60,12 +61,14 @@ def test_a_finetune_starts_from_the_named_checkpoint_with_its_tokenizer(pretrain
     assert build["tokenizer"]["sha256"] and build["tokenizer_scheme"] == "native"
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_the_newest_checkpoint_by_default(pretrained, tmp_path):
     task = task_of(finetune_config(pretrained, tmp_path))
     task.init_state()
     assert task.description["init"]["step"] == 2
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_another_model_is_refused_naming_the_difference(pretrained, tmp_path):
     config = finetune_config(pretrained, tmp_path)
     config.model.text.layers = 3
@@ -73,6 +76,7 @@ def test_another_model_is_refused_naming_the_difference(pretrained, tmp_path):
         task_of(config).init_state()
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_another_tokenizer_is_refused(pretrained, tmp_path):
     other = tmp_path / "other.model"
     other.write_bytes(b"not the run's tokenizer")
@@ -89,6 +93,7 @@ def exported(pretrained, tmp_path_factory) -> pathlib.Path:
     return folder
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_a_finetune_starts_from_an_exported_folder_with_its_tokenizer(pretrained, exported, tmp_path):
     task = task_of(finetune_config(exported, tmp_path))
     state = task.init_state()
@@ -102,6 +107,7 @@ def test_a_finetune_starts_from_an_exported_folder_with_its_tokenizer(pretrained
     assert build["tokenizer"]["path"] == str((exported / "tokenizer.model").resolve())
 
 
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_an_exported_folder_refuses_a_checkpoint_step_and_other_numbers(exported, tmp_path):
     with pytest.raises(ValueError, match="init_step picks a checkpoint of a workdir only"):
         task_of(finetune_config(exported, tmp_path, init_step=1)).init_state()

@@ -383,6 +383,7 @@ def mesh_losses(mesh_shape, steps=3):
     return {"losses": losses, "specs": [str(kernel.sharding.spec), str(moment.sharding.spec)]}
 
 
+@pytest.mark.slow  # 51 s (make test's --durations, 2026-11-28, 2 cores)
 def test_mesh_of_eight_devices_gives_the_losses_of_one():
     one = mesh_losses((1, 1, 1))
     if jax.device_count() >= 8:
