@@ -7,19 +7,23 @@ Variants:
   grconvnet_rgbd  GR-ConvNet (c = 16) on RGB-D views
   grconvnet_rgb   GR-ConvNet (c = 16) on RGB views
   ggcnn2_d        GG-CNN2 on depth views
+  grconvnet_rgbd_public, ggcnn2_d_public
+                  the same two under the baselines' own protocol, `public`, image-wise (their shuffled split)
   tiny            GR-ConvNet (c = 4) on a few synthetic photos, seconds a step (the tests use it)
 
 config.task = "baseline" (kosmos_jax.train.baseline_task). config.data: source "cornell"
 (../shared/data/cornell), "synthetic" (config.data.synthetic_photos scenes written under
 config.data.root, as the KOSMOS-E configs' data) or a Cornell-format folder; the fold (scheme,
 protocol, fold of `folds`) and the training views (`copies` augmented views a photo, KOSMOS-E's
-`recipe`, `seed`) as baselines.inputs.fold_views takes them. Default: Cornell, honest protocol,
+`recipe`, `seed`) as baselines.inputs.fold_views takes them. data.protocol: "honest", "paper" or
+"public" (GR-ConvNet's and GG-CNN's own evaluation, kosmos_jax.baselines' docstring: one split,
+fold 0 only; scheme "image" shuffles it, "object" does not). Default: Cornell, honest protocol,
 object-wise fold 0. The schedules are sized to finish in about 20 minutes on 2 CPU cores.
 """
 
 import ml_collections
 
-VARIANTS = ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d", "tiny")
+VARIANTS = ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d", "grconvnet_rgbd_public", "ggcnn2_d_public", "tiny")
 
 
 def data_config(**changes) -> ml_collections.ConfigDict:
@@ -89,13 +93,13 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     config.train = train_config()
     # benchmarks/baselines.py (one train step, batch 8, 2 shared cores): GR-ConvNet c=16 RGB-D 1.5 s,
     # GG-CNN2 depth 0.46 s; so 600 and 2400 steps are about 15 and 18 minutes.
-    if variant == "grconvnet_rgbd":
+    if variant in ("grconvnet_rgbd", "grconvnet_rgbd_public"):
         config.model = model_config("grconvnet", "rgbd")
         config.train = train_config(steps=600, checkpoint_every=200)
     elif variant == "grconvnet_rgb":
         config.model = model_config("grconvnet", "rgb")
         config.train = train_config(steps=600, checkpoint_every=200)
-    elif variant == "ggcnn2_d":
+    elif variant in ("ggcnn2_d", "ggcnn2_d_public"):
         config.model = model_config("ggcnn2", "depth")
         config.train = train_config(steps=2400, checkpoint_every=600)
     else:
@@ -103,4 +107,6 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         config.data = data_config(source="synthetic", synthetic_photos=8, folds=3, copies=2)
         config.optimizer = optimizer_config(peak_lr=3e-3, warmup_steps=1)
         config.train = train_config(steps=6, batch_size=4, log_every=1, checkpoint_every=2)
+    if variant.endswith("_public"):
+        config.data = data_config(scheme="image", protocol="public")
     return config

@@ -4,11 +4,13 @@ predicted grasp per view for the rectangle metric (kosmos_jax.metrics), so both 
 
 Modules: grconvnet, ggcnn2 (the networks), layers (their convolutions, GraspMaps), transpose (a
 transposed convolution XLA's CPU backend differentiates quickly), targets (maps from rectangles),
-losses, predict (maps -> one grasp), inputs (photos + fold -> normalised views, batches), family
-(what a trainer needs: init, loss sums, predictions).
+losses, predict (maps -> one grasp), public_detect (maps -> one grasp or none, as the public code
+finds it), inputs (photos + fold -> normalised views, batches), family (what a trainer needs: init,
+loss sums, predictions).
 
 The public GG-CNN / GR-ConvNet code, as described in its data loaders, grasp utilities and
-evaluation, does the following; each is fixed here, with what the fix changes:
+evaluation, does the following; each is fixed here under the honest and paper protocols, with what
+the fix changes (the `public` protocol, below, puts the evaluation's part back):
 - Corners rounded to integers when read, and truncated to integers again after every rotation and
   zoom, the rectangle centre and the crop centre truncated too: every corner moves by up to half a
   pixel (more after several truncations, which all pull toward the origin), the angle of a short
@@ -39,6 +41,49 @@ Kept as published: the targets' background angle 0 (cos 2 theta = 1 off the gras
 compact rectangles, the 150 px width scale, the per-crop normalisation (targets, inputs). Changed
 on purpose, not a bug: the augmentation is KOSMOS-E's (crop 351, any rotation, shifts of 40 px,
 crop 224) instead of quarter turns and zooms of 0.5 to 1, so the two models see the same views.
+
+The public protocol
+-------------------
+`protocol="public"` (config data.protocol, inputs.fold_views, train.baseline_task.test_scores,
+`python -m kosmos_jax.evaluate`) scores a baseline as GR-ConvNet's and GG-CNN's own code does, so
+that their published Cornell figures (DESIGN.md section 3) can be set beside ours. From
+skumra/robotic-grasping (train_network.py, evaluate.py, utils/data/cornell_data.py and
+grasp_data.py, inference/post_process.py, utils/dataset_processing/grasp.py and evaluation.py) and
+dougsm/ggcnn (train_ggcnn.py, eval_ggcnn.py, models/common.py, the same data and grasp utilities):
+- Split (sources.splits.public_split): ONE split of the sorted photo list (their sorted
+  `*/pcd*cpos.txt`): the first floor(0.9 n) photos train, the rest test (`--split 0.9`). Scheme
+  "image" shuffles the indices first as `--ds-shuffle --random-seed 123` does (numpy's legacy
+  `np.random.seed(123); np.random.shuffle`; their released model is named "cornell-randsplit-...");
+  scheme "object" does not shuffle: the last tenth of the file list, their default, the only split
+  of train_ggcnn.py and the photos evaluate.py and eval_ggcnn.py test on (`start=0.9`), which
+  follows file numbers, not objects. Fold 0 only, k unused: their one way to another split,
+  `--ds-rotate` (the file list rotated by a fraction before the cut), is swept by no script of
+  theirs and is not offered; another fold is a ValueError.
+- Test views (inputs.PUBLIC_TEST_CROP): `_get_crop_attrs`' window of 224 px centred on the mean of
+  all ground-truth corners (truncated to whole pixels), clamped to the photo, with no rotation and
+  zoom 1 (evaluate.py and eval_ggcnn.py without --augment). The training views are honest's:
+  `copies` augmented views of each training photo with label-centred crops (KOSMOS-E's recipe, as
+  above).
+- Detection (public_detect.detect_grasps), their order: the angle 0.5 atan2(sin, cos) is taken
+  first and then blurred (sigma 2), the quality blurred (sigma 2), the width x 150 blurred (sigma 1);
+  the grasp is peak_local_max(quality, min_distance=20, threshold_abs=0.2, num_peaks=1): the highest
+  pixel that is the maximum of its 41 x 41 window, strictly above 0.2 and 20 px or more from every
+  edge. None: the view has no grasp (a NaN row) and counts as a failure (`grasps_not_found` in the
+  test record and in evaluate's results).
+- Metric (scoring.fold_scores.metric_settings): the one grasp keeps its predicted opening w and a
+  jaw h = w / 2 (Grasp.as_gr; metrics wh_policy "predicted"), and succeeds when, against some
+  ground truth of the view, the angle differs by at most 30 degrees (GraspRectangle.iou returns 0
+  beyond pi/6) and the IoU counted over integer pixel centres (skimage's polygon; metrics backend
+  "reference") is above 0.25 (calculate_iou_match). Accuracy: the share of test views that succeed.
+What stays ours under `public`: corners stay floats (theirs are rounded and truncated); our frame
+puts pixel centres at half-integers, so the grasp sits at (column + 0.5, row + 0.5) where theirs sits
+at the integer (row, column) of their index frame (a half-pixel shift of labels and grasps alike,
+which moves only which pixel centres the IoU counts); a ground truth whose centre leaves the 224
+crop is dropped (make_views), theirs stays in the list; equal peaks go to the first in row-major
+order (today's skimage's stable sort; older releases may order ties otherwise); GG-CNN crops 300 px, both
+networks here take 224; and their train_network.py's validation (the figure in its saved models'
+names) scores the SAME dataset object the training reads, with random quarter turns and zooms of
+0.5 to 1 on the test views too, where we follow evaluate.py's plain crops.
 """
 
 from kosmos_jax.baselines.ggcnn2 import GGCNN2

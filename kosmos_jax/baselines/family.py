@@ -5,6 +5,7 @@
     (loss_sum, (sums, rest)), grads = jax.value_and_grad(family.loss_sums, has_aux=True)(
         params, rest, batch, key, True)                         # batch: inputs.BATCH_KEYS
     grasps = family.predict(params, rest, batch["image"])       # [B, 5] (x, y, w, h, theta)
+    grasps = family.predictor("public")(params, rest, images)   # the public code's detection, NaN: none
     grasps = predict_views(family, params, rest, views)         # every view of an inputs.ViewArrays
 
 `loss_sums` returns the loss SUMMED over the batch's images, and `sums` holds "loss_sum", "count"
@@ -36,6 +37,8 @@ from kosmos_jax.baselines.inputs import ViewArrays, eval_batches
 from kosmos_jax.baselines.layers import input_channels
 from kosmos_jax.baselines.losses import NETWORK_LOSS, map_losses
 from kosmos_jax.baselines.predict import predict_grasps
+from kosmos_jax.baselines.public_detect import detect_grasps
+from kosmos_jax.sources.splits import PUBLIC
 from kosmos_jax.baselines.targets import WIDTH_SCALE, grasp_maps
 
 NETWORKS = ("grconvnet", "ggcnn2")
@@ -75,6 +78,11 @@ class Family:
     init: Callable  # seed -> (graphdef, params, rest)
     loss_sums: Callable  # (params, rest, batch, key, train) -> (loss_sum, (sums, rest))
     predict: Callable  # (params, rest, images) -> [B, 5]
+    detect_public: Callable  # (params, rest, images) -> [B, 5], NaN rows where the public code finds no peak
+
+    def predictor(self, protocol: str) -> Callable:
+        """The grasps a protocol scores: the public code's detection under "public", else `predict`."""
+        return self.detect_public if protocol == PUBLIC else self.predict
 
 
 def make_family(config: BaselineConfig) -> Family:
@@ -107,12 +115,18 @@ def make_family(config: BaselineConfig) -> Family:
         grasps, _ = predict_grasps(model(params, rest, False)(images), width_scale=config.width_scale)
         return grasps
 
-    return Family(config, graphdef, init, loss_sums, predict)
+    def detect_public(params, rest, images):
+        grasps, _ = detect_grasps(model(params, rest, False)(images), width_scale=config.width_scale)
+        return grasps
+
+    return Family(config, graphdef, init, loss_sums, predict, detect_public)
 
 
-def predict_views(family: Family, params, rest, views: ViewArrays, batch_size: int = 8) -> np.ndarray:
-    """[V, 5] grasps of every view, in the views' order (one compiled batch shape; padding dropped)."""
-    predict = jax.jit(family.predict)
+def predict_views(family: Family, params, rest, views: ViewArrays, batch_size: int = 8,
+                  protocol: str = "honest") -> np.ndarray:
+    """[V, 5] grasps of every view under `protocol` (family.predictor), in the views' order (one
+    compiled batch shape; padding dropped)."""
+    predict = jax.jit(family.predictor(protocol))
     parts = []
     for batch in eval_batches(views, batch_size):
         grasps = np.asarray(predict(params, rest, jnp.asarray(batch["image"])))

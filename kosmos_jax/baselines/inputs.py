@@ -8,7 +8,10 @@ over photos or object ids before any augmentation), the same augmentation settin
 (`dataset.views.augment_config`: crop 351 -> rotate -> translate -> crop 224, `copies` per training
 photo) and the same keys (photo i of the list gets fold_in(PRNGKey(seed), i); the honest test views
 use seed + 1 and are the un-rotated image-centre crop). So with one seed the RGB channels here are
-the images KOSMOS-E trains and is scored on, up to uint8 rounding. The depth map is stacked with the
+the images KOSMOS-E trains and is scored on, up to uint8 rounding. The `public` protocol (the
+baselines' own, package docstring) trains on the same augmented views of its split's training
+photos and tests on PUBLIC_TEST_CROP: the 224 window centred on the ground truths' mean, clamped to
+the photo, copied as it is (no rotation, zoom 1: their evaluate.py without --augment). The depth map is stacked with the
 RGB as a fourth channel BEFORE the warp, so it moves with the pixels (`augment` warps any channel
 count and float images).
 
@@ -42,6 +45,10 @@ from kosmos_jax.sources.photo import Photo
 from kosmos_jax.dataset.views import HONEST_TEST_CROP, augment_config
 
 BATCH_KEYS = ("image", "grasps", "mask")
+# GR-ConvNet's and GG-CNN's test crop (_get_crop_attrs): output_size centred on the truncated mean of the
+# ground-truth corners, clamped to the photo; crop_size = output_size, so nothing is resampled.
+PUBLIC_TEST_CROP = AugmentConfig(crop_size=224, output_size=224, centre_policy="gt_centroid", max_translation=0.0,
+                                 integer_steps=True)
 
 
 def needs_depth(mode: str) -> bool:
@@ -178,25 +185,31 @@ def fold_views(photos: Sequence[Photo], mode: str, fold: int, scheme: str = "ima
 
     honest: `copies` augmented views of each training photo (key seed) and one un-rotated `test_crop`
       crop of each test photo (seed + 1). paper: `copies` augmented copies of every photo, all with
-      `train_crop`, and the public code's folds over those copies.
+      `train_crop`, and the public code's folds over those copies. public: the GR-ConvNet / GG-CNN
+      split (fold 0 only, splits.public_split), training views as honest's, PUBLIC_TEST_CROP test views.
     """
+    if protocol not in splits.PROTOCOLS:
+        raise ValueError(f"protocol {protocol!r} must be one of {', '.join(splits.PROTOCOLS)}")
     photos = list(photos)
     index = {p.id: i for i, p in enumerate(photos)}
     ids = [p.id for p in photos]
     object_ids = [p.object_id for p in photos] if scheme == "object" else None
-    if fold_seed is None:
-        fold_seed = 0 if protocol == "honest" else splits.PAPER_SEED
+    # fold_seed None: each protocol's own default (honest 0, paper and public the public code's 123)
     chosen = splits.split(ids, fold, scheme, protocol, object_ids=object_ids, k=k, seed=fold_seed,
                           copies_per_photo=copies)
     missing = sorted(p.id for p in photos if needs_depth(mode) and p.depth is None)
     usable = {p.id: p for p in photos if p.id not in missing}
-    if protocol == "honest":
+    if protocol in ("honest", splits.PUBLIC):
         train_photos = [usable[i] for i in chosen.train if i in usable]
         test_photos = [usable[i] for i in chosen.test if i in usable]
         train = make_views(train_photos, mode, augment_config(copies, recipe, train_crop), seed, index,
                            batch_size=batch_size)
-        test_config = HONEST_TEST_CROP if test_crop == HONEST_TEST_CROP.centre_policy else dataclasses.replace(
-            HONEST_TEST_CROP, centre_policy=test_crop)
+        if protocol == splits.PUBLIC:
+            test_config = PUBLIC_TEST_CROP
+        elif test_crop == HONEST_TEST_CROP.centre_policy:
+            test_config = HONEST_TEST_CROP
+        else:
+            test_config = dataclasses.replace(HONEST_TEST_CROP, centre_policy=test_crop)
         test = make_views(test_photos, mode, test_config, seed + 1, index, crop_only=True, batch_size=batch_size)
     else:
         every = make_views(list(usable.values()), mode, augment_config(copies, recipe, train_crop), seed, index,
@@ -235,5 +248,5 @@ def eval_batches(views: ViewArrays, batch_size: int) -> Iterator[dict[str, np.nd
                "rows": marks}
 
 
-__all__ = ["BATCH_KEYS", "FoldViews", "ViewArrays", "batch_rows", "batches", "eval_batches",
+__all__ = ["BATCH_KEYS", "PUBLIC_TEST_CROP", "FoldViews", "ViewArrays", "batch_rows", "batches", "eval_batches",
            "fold_views", "make_views", "needs_depth", "normalise", "photo_channels"]

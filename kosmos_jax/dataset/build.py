@@ -270,6 +270,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     `build_settings`: the input files by path, without "sha256". Either way "word_source",
     "kinds" (as resolved) and "photos" (how many were read) sit beside it."""
     source = pathlib.Path(config.source)
+    splits.refuse_public(config.protocol, "the KOSMOS-E dataset build")
     if config.protocol not in ("honest", "paper"):
         raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
     if not source.is_dir():
@@ -416,7 +417,8 @@ def define_flags(flag_values: flags.FlagValues) -> None:
     define = commands.definer(flag_values)
     define("string", "source", None, "Cornell-format folder")
     define("string", "out", None, "TFDS data_dir to write into")
-    define("enum", "protocol", "honest", "scoring protocol", enum_values=["honest", "paper"])
+    define("enum", "protocol", "honest", "scoring protocol (public: refused, it scores a baseline's maps)",
+           enum_values=["honest", "paper", "public"])
     define("enum", "split", "image", "fold scheme", enum_values=["image", "object"])
     define("integer", "fold", 0, "the test fold")
     define("integer", "folds", 5, "number of folds")

@@ -35,6 +35,7 @@ import numpy as np
 from kosmos_jax.augment import affine
 from kosmos_jax.augment.pipeline import AugmentConfig, augment, kept_grasps, move_grasps, pad_grasps
 from kosmos_jax.augment.warp import warp_images
+from kosmos_jax.sources import splits
 from kosmos_jax.sources.photo import Photo
 from kosmos_jax.instruct.sample import View
 
@@ -194,6 +195,7 @@ def _runs_of_one_shape(photos: Sequence[Photo], size: int):
 def evaluation_views(photos: Sequence[Photo], protocol: str = "honest", seed: int = 0, chunk: int = 32,
                      progress: bool = False) -> Views:
     """Test views of `photos` (with images) under `protocol`; deterministic for a seed."""
+    splits.refuse_public(protocol, "KOSMOS-E's evaluation views")
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
     for photo in photos:

@@ -7,8 +7,10 @@ photos of its data source, the same folds, augmentation and keys as in training;
 views must match what training recorded), or with --cornell every photo of a Cornell-format folder
 cut as KOSMOS-E's --cornell examples are (dataset.views.HONEST_TEST_CROP: the un-rotated
 image-centre crop; honest protocol). The checkpoint's parameters and BatchNorm statistics give one
-grasp a view (baselines.family.predict_views: the peak of the blurred quality map);
-scoring.view_scores scores them with the tally and protocol KOSMOS-E's answers go through.
+grasp a view (baselines.family.predict_views: the peak of the blurred quality map; under the run's
+`public` protocol the public code's detection, which may find none, on its label-centred crops);
+scoring.view_scores scores them with the tally and protocol KOSMOS-E's answers go through (under
+`public`, the grasp's own w, h and the pixel-count IoU).
 """
 
 from __future__ import annotations
@@ -139,7 +141,7 @@ def evaluate_baseline(workdir, *, step: int | None, split: str, cornell, kinds: 
         source = {"source": str(run.source_folder()), "fold": run.config.data.fold,
                   "scheme": run.config.data.scheme, "missing_depth": run.description["missing_depth"]}
     views = first_views(views, max_examples)
-    grasps = predict_views(run.family, weights["params"], weights["model_state"], views, batch_size)
+    grasps = predict_views(run.family, weights["params"], weights["model_state"], views, batch_size, protocol)
     figures, rows = view_results(grasps, views, protocol)
     results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
                "split": label, **source, "model": run.name, "network": run.family.config.network,

@@ -44,7 +44,7 @@ def check_source(data, folds: int, where: str) -> str:
 
 
 def check_fold(protocol, scheme, fold, folds, where: str) -> None:
-    spec.parse_names(protocol, spec.PROTOCOLS, f"{where}: protocol")
+    spec.parse_protocols(protocol, f"{where}: protocol")
     spec.parse_names(scheme, spec.SCHEMES, f"{where}: scheme")
     if not 0 <= fold < folds:
         raise ExperimentError(f"{where}: fold {fold} outside 0..{folds - 1}")

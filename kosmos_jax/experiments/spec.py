@@ -29,6 +29,8 @@ import pathlib
 
 import ml_collections
 
+from kosmos_jax.sources import splits
+
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SCHEMES = ("image", "object")
 PROTOCOLS = ("honest", "paper")
@@ -104,6 +106,13 @@ def parse_names(text, allowed, what: str) -> list[str]:
     if unknown:
         raise ExperimentError(f"unknown {what} {', '.join(map(repr, unknown))}; expected some of {', '.join(allowed)}")
     return list(dict.fromkeys(names))
+
+
+def parse_protocols(text, what: str = "protocol") -> list[str]:
+    """parse_names over PROTOCOLS; "public", the baselines' one-split protocol, refused with why."""
+    if splits.PUBLIC in [n.strip() for n in str(text).split(",")]:
+        raise ExperimentError(f"{what} {text!r}: {splits.PUBLIC_REFUSED}")
+    return parse_names(text, PROTOCOLS, what)
 
 
 def parse_folds(text, k: int) -> list[int]:
@@ -271,7 +280,7 @@ def check_recipe(record: dict, fold_config, where) -> None:
 def runs(config, every: bool = False) -> list[Run]:
     """The runs this invocation trains (chosen arms and folds), or with `every` all the experiment's."""
     schemes = parse_names(config.schemes, SCHEMES, "scheme")
-    protocols = parse_names(config.protocols, PROTOCOLS, "protocol")
+    protocols = parse_protocols(config.protocols)
     folds = parse_folds("" if every else config.folds, config.k)
     arms = arm_names(config) if every else chosen_arms(config)
     return [Run(a, p, s, f) for a in arms for p in protocols for s in schemes for f in folds]

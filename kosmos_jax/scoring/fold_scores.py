@@ -11,7 +11,19 @@ from kosmos_jax.dataset.views import Views
 from kosmos_jax.metrics import grasp_success
 from kosmos_jax.scoring.no_learning import ground_truth_mean
 
-WH_POLICY = {"honest": "per_gt", "paper": "kosmos_e"}
+WH_POLICY = {"honest": "per_gt", "paper": "kosmos_e"}  # KOSMOS-E's answers: w, h borrowed
+# The baselines' own protocol (kosmos_jax.baselines): their grasp keeps its predicted w and h and is
+# scored with the public code's pixel-count IoU, whatever backend was asked for.
+PUBLIC_METRIC = ("predicted", "reference")
+
+
+def metric_settings(protocol: str, backend: str = "exact") -> tuple[str, str]:
+    """(wh_policy, backend) of the rectangle metric under `protocol`."""
+    if protocol == splits.PUBLIC:
+        return PUBLIC_METRIC
+    if protocol not in WH_POLICY:
+        raise ValueError(f"unknown protocol {protocol!r}; expected one of {', '.join(splits.PROTOCOLS)}")
+    return WH_POLICY[protocol], backend
 
 
 @dataclasses.dataclass

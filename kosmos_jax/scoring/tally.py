@@ -16,7 +16,7 @@ import numpy as np
 from kosmos_jax import geometry
 from kosmos_jax.grasp_text import ParsedGrasp
 from kosmos_jax.metrics import grasp_success
-from kosmos_jax.scoring.fold_scores import WH_POLICY
+from kosmos_jax.scoring.fold_scores import WH_POLICY, metric_settings
 from kosmos_jax.scoring.instructions import Instruction, combine
 
 
@@ -34,11 +34,13 @@ def padded_answers(instructions: Sequence[Instruction]) -> tuple[np.ndarray, np.
 def successes(instructions: Sequence[Instruction], grasps: np.ndarray, protocol: str,
               backend: str = "exact") -> np.ndarray:
     """bool [G]: does grasp i, (x, y, theta), hit a ground truth of instruction i? w and h follow the
-    protocol (honest: each ground truth's own; paper: the widest opening and the mean jaw)."""
+    protocol (honest: each ground truth's own; paper: the widest opening and the mean jaw; public, a
+    baseline's: its own, grasps [G, 5], with the pixel-count IoU)."""
     if not instructions:
         return np.zeros(0, bool)
     gts, mask = padded_answers(instructions)
-    found = grasp_success(np.asarray(grasps, np.float32), gts, mask, backend=backend, wh_policy=WH_POLICY[protocol])
+    wh_policy, backend = metric_settings(protocol, backend)
+    found = grasp_success(np.asarray(grasps, np.float32), gts, mask, backend=backend, wh_policy=wh_policy)
     return np.asarray(found)
 
 

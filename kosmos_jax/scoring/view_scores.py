@@ -5,7 +5,9 @@
 Each view is an instruction of kind "non" ("grasp any object") in a single scene, answered by every
 ground truth left in the view, so the tally's rectangle metric and the protocol's w/h borrowing
 (honest: each ground truth's own; paper: the widest opening and the mean jaw) decide as they do for
-KOSMOS-E. A baseline always gives a grasp: nothing to parse, no unconstrained decoding.
+KOSMOS-E. A baseline gives a grasp, nothing to parse, except under the `public` protocol: there the
+public code's detection may find none (a NaN row: a failure, counted in `grasps_not_found`, its
+row's grasp None), and the grasp's own w, h and the pixel-count IoU decide (fold_scores.metric_settings).
 `views` is any object with `grasps` [V, N, 5], `mask` [V, N], `photo_id` and `copy` (a
 baselines.inputs.ViewArrays).
 """
@@ -16,6 +18,7 @@ import numpy as np
 
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.fold_scores import metric_settings
 from kosmos_jax.scoring.instructions import Instruction
 
 SCENE = "single"
@@ -35,14 +38,17 @@ def view_results(grasps: np.ndarray, views, protocol: str, backend: str = "exact
         raise ValueError(f"{grasps.shape[0]} predicted grasps of shape {grasps.shape[1:]} for {len(views.photo_id)} "
                          "views: expected one (x, y, w, h, theta) a view")
     instructions = view_instructions(views)
-    success = tally.successes(instructions, grasps[:, [0, 1, 4]], protocol, backend)
+    success = tally.successes(instructions, grasps, protocol, backend)
+    wh_policy, backend = metric_settings(protocol, backend)
+    found = np.isfinite(grasps).all(axis=1)
     results = {"accuracy": tally.percent(success), "instructions": len(instructions), "examples": len(instructions),
-               "correct": int(success.sum()), "protocol": protocol, "backend": backend,
-               "wh_policy": tally.WH_POLICY[protocol],
+               "correct": int(success.sum()), "protocol": protocol, "backend": backend, "wh_policy": wh_policy,
+               "grasps_not_found": int((~found).sum()),
                "by_kind": tally.group_accuracy(instructions, success, lambda i: i.kind),
                "by_scene": tally.group_accuracy(instructions, success, lambda i: i.scene)}
     rows = [{"example": row, "kind": NON, "scene": SCENE, "part": PART, "photo_ids": [views.photo_id[row]],
-             "copy": int(views.copy[row]), "instruction": "", "grasp": [round(float(v), 4) for v in grasps[row]],
+             "copy": int(views.copy[row]), "instruction": "",
+             "grasp": [round(float(v), 4) for v in grasps[row]] if found[row] else None,
              "ground_truths": int(np.sum(views.mask[row])), "correct": bool(success[row])}
             for row in range(len(instructions))]
     return results, rows

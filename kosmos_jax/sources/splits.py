@@ -1,6 +1,7 @@
 """Cross-validation folds, decided over photo ids BEFORE any augmentation (DESIGN.md section 3).
 
-Two protocols:
+Three protocols (PROTOCOLS); KOSMOS-E's builds and sweeps take the first two, `public` is the
+baselines' own (kosmos_jax.baselines):
 - honest (default): image-wise folds are a seeded permutation of the PHOTOS; object-wise folds
   group photos by physical object id (Cornell's z.txt), so no object is in two folds, and balance
   the folds by photo count.
@@ -12,6 +13,13 @@ Two protocols:
   unshuffled, for "object-wise" ("OW"). Block i is samples [floor(i/k * n), floor((i+1)/k * n)).
   Paper samples are named (photo id, copy index), the copy index counting a photo's augmented
   copies in their sorted order.
+- public: what GR-ConvNet's and GG-CNN's public code does (train_network.py of skumra/robotic-grasping,
+  train_ggcnn.py of dougsm/ggcnn): ONE split of the sorted photo list (their sorted `*/pcd*cpos.txt`
+  glob), the first floor(0.9 n) photos train and the rest test (`--split 0.9`). Image-wise: the
+  indices shuffled first with numpy's legacy `np.random.seed(123); np.random.shuffle` (`--ds-shuffle
+  --random-seed 123`); "object-wise": not shuffled, the last tenth of the file list (their default,
+  and the photos their evaluate.py / eval_ggcnn.py test on). There is no k-fold: fold 0 only; k is
+  not used. Lists of photo ids, sorted.
 
 Everything is a pure function of the ids and the seed; the input order of `photo_ids` does not
 matter (ids are sorted first).
@@ -34,6 +42,13 @@ import numpy as np
 
 PAPER_SEED = 123
 PAPER_COPIES_PER_PHOTO = 9
+PUBLIC = "public"
+PROTOCOLS = ("honest", "paper", PUBLIC)
+PUBLIC_SEED = 123  # train_network.py's --random-seed
+PUBLIC_TRAIN_FRACTION = 0.9  # --split
+PUBLIC_REFUSED = ("protocol 'public' scores a baseline's quality, angle and width maps (GR-ConvNet, GG-CNN2: "
+                  "configs/baselines.py with data.protocol='public', one split, fold 0); KOSMOS-E's datasets "
+                  "and experiment sweeps take 'honest' or 'paper'")
 
 
 VALIDATION_STREAM = 0x76616C  # "val": the validation draw's stream of the fold seed
@@ -140,6 +155,25 @@ def paper_samples(photo_ids: Sequence[str], copies_per_photo: int = PAPER_COPIES
     return [(photo, copy) for photo in _sorted_unique(photo_ids) for copy in range(copies_per_photo)]
 
 
+def public_split(photo_ids: Sequence[str], shuffle: bool, seed: int = PUBLIC_SEED) -> Split:
+    """The public code's one split (see the module docstring): sorted train and test photo ids."""
+    ids = _sorted_unique(photo_ids)
+    cut = math.floor(PUBLIC_TRAIN_FRACTION * len(ids))  # int(np.floor(args.split * dataset.length))
+    if cut == 0 or cut == len(ids):
+        raise ValueError(f"{len(ids)} photos: the public split of the first {PUBLIC_TRAIN_FRACTION:.0%} leaves "
+                         "an empty train or test side; it needs at least 2 photos")
+    order = list(range(len(ids)))
+    if shuffle:
+        np.random.RandomState(seed).shuffle(order)  # np.random.seed(seed); np.random.shuffle(indices)
+    return Split(sorted(ids[i] for i in order[:cut]), sorted(ids[i] for i in order[cut:]))
+
+
+def refuse_public(protocol: str, where: str) -> None:
+    """A ValueError saying why, when a KOSMOS-E stage (`where`) is handed the baselines' protocol."""
+    if protocol == PUBLIC:
+        raise ValueError(f"{where}: {PUBLIC_REFUSED}")
+
+
 def folds_to_split(items: Sequence, folds: Sequence[int], fold: int, k: int) -> Split:
     """Items whose fold is `fold` are the test set, the rest training; input order kept."""
     if not 0 <= fold < k:
@@ -159,6 +193,8 @@ def split(photo_ids: Sequence[str], fold: int, scheme: str = "image", protocol: 
     paper: lists of (photo id, copy index) augmented samples in sorted file order; seed (image-wise
       only) defaults to the public code's 123; object ids are not used (its "object-wise" split is
       contiguous blocks of the file list).
+    public: `public_split`, shuffled for scheme "image" (seed defaults to 123), not for "object";
+      fold must be 0 (one split), k and object ids are not used.
     """
     if scheme not in ("image", "object"):
         raise ValueError(f"scheme {scheme!r} must be 'image' or 'object'")
@@ -178,7 +214,12 @@ def split(photo_ids: Sequence[str], fold: int, scheme: str = "image", protocol: 
         else:
             folds = paper_object_wise_folds(len(samples), k)
         return folds_to_split(samples, folds, fold, k)
-    raise ValueError(f"protocol {protocol!r} must be 'honest' or 'paper'")
+    if protocol == PUBLIC:
+        if fold != 0:
+            raise ValueError(f"fold {fold}: the public protocol has one split (the first "
+                             f"{PUBLIC_TRAIN_FRACTION:.0%} of the photo list trains, the rest tests); only fold 0")
+        return public_split(photo_ids, shuffle=scheme == "image", seed=PUBLIC_SEED if seed is None else seed)
+    raise ValueError(f"protocol {protocol!r} must be one of {', '.join(PROTOCOLS)}")
 
 
 def check_validation_fraction(fraction) -> float:

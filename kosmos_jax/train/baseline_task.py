@@ -9,7 +9,9 @@ checkpoint is its step; the train state carries the BatchNorm running statistics
 `TrainState.model_state` (checkpointed and restored, never re-initialised); the step adds each
 microbatch's loss sums and gradients (divided once by the global image count), each microbatch's
 BatchNorm update starting from the previous one's, so the state keeps the last; the test record
-scores `predict` (one grasp a view) with the rectangle metric under the run's protocol.
+scores `predict` (one grasp a view) with the rectangle metric under the run's protocol (under
+`public`, the public code's detection, which may find no grasp, and its metric: baselines package
+docstring).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from kosmos_jax.baselines import inputs
 from kosmos_jax.baselines.family import BaselineConfig, make_family
 from kosmos_jax.sources import cornell
 from kosmos_jax.metrics import grasp_success
-from kosmos_jax.scoring.fold_scores import WH_POLICY
+from kosmos_jax.scoring.fold_scores import metric_settings
 from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState
@@ -142,16 +144,21 @@ def make_baseline_step(family, tx, schedule, mesh, state_sharding, *, microbatch
 
 def test_scores(family, state, views: inputs.ViewArrays, batch_size: int, protocol: str) -> dict:
     """Loss (mean per view, running statistics) and the fraction of views whose one predicted grasp
-    succeeds: `accuracy`, and as a percentage `grasp_accuracy` (KOSMOS-E's test lines' name)."""
+    succeeds: `accuracy`, and as a percentage `grasp_accuracy` (KOSMOS-E's test lines' name), under
+    the protocol's detection (family.predictor) and metric (fold_scores.metric_settings);
+    `grasps_not_found`: views where the detection found no grasp (only the public one can)."""
     loss_sums = jax.jit(lambda params, rest, batch: family.loss_sums(params, rest, batch, jax.random.key(0), False)[0])
-    predict = jax.jit(family.predict)
+    predict = jax.jit(family.predictor(protocol))
     loss, grasps = 0.0, []
     for batch in inputs.eval_batches(views, batch_size):
         loss += float(loss_sums(state.params, state.model_state, batch))
         grasps.append(np.asarray(predict(state.params, state.model_state, batch["image"]))[batch["rows"] >= 0])
-    success = float(np.mean(np.asarray(grasp_success(np.concatenate(grasps), views.grasps, views.mask,
-                                                     wh_policy=WH_POLICY[protocol]))))
-    return {"loss": loss / len(views), "accuracy": success, "grasp_accuracy": 100.0 * success, "views": len(views)}
+    grasps = np.concatenate(grasps)
+    wh_policy, backend = metric_settings(protocol)
+    success = float(np.mean(np.asarray(grasp_success(grasps, views.grasps, views.mask, backend=backend,
+                                                     wh_policy=wh_policy))))
+    return {"loss": loss / len(views), "accuracy": success, "grasp_accuracy": 100.0 * success, "views": len(views),
+            "grasps_not_found": int(np.sum(~np.isfinite(grasps).all(axis=1)))}
 
 
 def baseline_task(config, mesh, tx, schedule):
