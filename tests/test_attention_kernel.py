@@ -60,6 +60,7 @@ def test_active_attention_dropout_takes_the_einsum_path():
                                np.asarray(dot_product_attention(q, k, v, mask)), rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow  # 26 s (make test's --durations, 2026-11-28, 2 cores)
 def test_the_model_with_fused_attention_matches_the_pytorch_reference_and_its_gradients_the_einsum_model():
     ref = dict(np.load(FIXTURE / "reference.npz"))
     args = (jnp.asarray(ref["input_ids"]), jnp.asarray(ref["attention_mask"], bool),

@@ -173,6 +173,7 @@ def _batch(mode, rows=4):
     return {"image": jnp.asarray(images), "grasps": jnp.asarray(grasps), "mask": jnp.asarray(mask)}
 
 
+@pytest.mark.slow  # 17 and 12 s (make test's --durations, 2026-11-28, 2 cores)
 @pytest.mark.parametrize("network, mode", [("grconvnet", "rgbd"), ("ggcnn2", "depth")])
 def test_one_adam_step_lowers_the_loss(network, mode):
     config = family_lib.BaselineConfig(network=network, mode=mode, channels=4)

@@ -49,6 +49,7 @@ def test_a_patch_cell_index_and_its_centre_invert_each_other_on_the_grid():
         grid_side(63)
 
 
+@pytest.mark.slow  # 14 s (make test's --durations, 2026-11-28, 2 cores)
 def test_with_a_grid_code_the_slots_ignore_what_every_image_token_shares():
     model = kosmos2.build(NO_DROPOUT.replace(connector_grid_code=1.0))
     features = jax.random.normal(jax.random.key(0), (2, 1 + GRID * GRID, TINY.vision.hidden_size))

@@ -150,6 +150,7 @@ def test_half_precision_checkpoints_import_as_float32(tmp_path, dtype, max_shard
         np.testing.assert_array_equal(back[path], expected, err_msg=path)
 
 
+@pytest.mark.slow  # 16 s (make test's --durations, 2026-11-28, 2 cores)
 def test_a_grid_code_model_is_written_only_on_opt_in_and_a_kosmos_2_one_alike_either_way(tmp_path):
     grid = build(TINY.replace(connector_grid_code=3.0))
     with pytest.raises(ValueError, match=r"extensions=True"):

@@ -61,6 +61,7 @@ def test_notebook_is_committed_without_outputs(path):
         f"{path.name} is committed with outputs; clear them"
 
 
+@pytest.mark.slow  # 26 s (make test's --durations, 2026-11-28, 2 cores)
 def test_walkthrough_runs(tmp_path):
     notebook = execute("walkthrough.ipynb", tmp_path)
     assert "tiny model logits" in printed(notebook) and images(notebook) == 2

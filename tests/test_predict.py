@@ -272,6 +272,7 @@ def test_the_predict_command_prints_one_error_line(workdir, tmp_path):
     assert done.returncode == 1 and "warning: " in done.stderr and "error: the instruction is empty" in done.stderr
 
 
+@pytest.mark.slow  # 42 s (make test's --durations, 2026-11-28, 2 cores)
 def test_evaluate_draws_a_grid_per_instruction_kind(workdir):
     done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", "--overlays=2")
     assert done.returncode == 0, done.stderr[-3000:]

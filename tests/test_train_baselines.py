@@ -68,6 +68,7 @@ def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
 
 
 
+@pytest.mark.slow  # 36 s (make test's --durations, 2026-11-28, 2 cores)
 def test_microbatches_add_up_to_the_whole_batch_s_step():
     """GG-CNN2 (no BatchNorm, so no per-microbatch statistics): one step on 8 views makes the same
     update whole (no scan) as in 2 or 4 microbatches (the unrolled scan)."""

@@ -140,6 +140,7 @@ def test_mesh_that_does_not_divide_the_devices_is_refused():
         train_compile.compile_plan(config, train_compile.parse_topology("cpu:8"))
 
 
+@pytest.mark.slow  # 34 s (make test's --durations, 2026-11-28, 2 cores)
 def test_compile_command_on_eight_cpu_devices():
     done = _run("--topology=cpu:8", "--json", "--config.mesh.data=2", "--config.mesh.fsdp=4", timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -158,6 +159,7 @@ def test_compile_command_on_eight_cpu_devices():
     assert result["compile_s"] > 0 and (result["batch_size"], result["max_length"]) == (8, 96)
 
 
+@pytest.mark.slow  # 14 s (make test's --durations, 2026-11-28, 2 cores)
 def test_compile_command_refuses_what_it_cannot_compile():
     unknown = _run("--topology=v9:2x2")
     assert unknown.returncode == 1 and "compile: unknown topology 'v9:2x2'" in unknown.stderr

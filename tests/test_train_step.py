@@ -196,6 +196,7 @@ def test_loss_is_the_mean_over_loss_tokens_of_the_global_batch():
 
 # -- the step -------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # 30 s (make test's --durations, 2026-11-28, 2 cores)
 def test_steps_lower_the_loss_on_a_fixed_batch():
     train_state, train_step = _fresh_state(TINY, microbatches=2)
     batch = _batch()

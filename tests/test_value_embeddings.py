@@ -85,6 +85,7 @@ def _tiny_config(code: float):
     return config
 
 
+@pytest.mark.slow  # 19 s (make test's --durations, 2026-11-28, 2 cores)
 def test_fresh_parameters_start_with_near_values_near_and_digit_tokenizers_are_refused():
     values = train_tokenizer(TEXTS, numbers="values", text_pieces=50)
     cfg = model_configs.TINY.with_vocab_size(values.vocab_size)
