@@ -12,4 +12,7 @@ stdout (--json: one line) and, for image_use, in WORKDIR/eval/STEP/image_use.jso
         can a fresh vision tower of the run's config find the grasp centre at all (a trained probe)
     python -m kosmos_jax.diagnostics.angle_probe --workdir=W [--step=N] [--examples=3000] [--json]
         where the model loses the grasp's angle: ridge readouts at the tower, the slots, the decoder
+    python -m kosmos_jax.diagnostics.object_probe --workdir=W [--step=N] [--examples=2000] [--json]
+        where a mosaic's named object is lost: does the tower see each photo's object, do the slots
+        and the decoder know which quadrant the words name
 """

@@ -31,6 +31,7 @@ from absl import flags
 from flax import nnx
 
 from kosmos_jax import commands, geometry
+from kosmos_jax.diagnostics.readouts import ridge_fit
 from kosmos_jax.models.patch_grid import cell_index, grasp_cell_tokens, grid_side
 from kosmos_jax.models.decoder import position_ids
 from kosmos_jax.models.kosmos2 import build, split_model
@@ -120,11 +121,7 @@ def share_within(answered: np.ndarray, angles: np.ndarray) -> float:
 
 def ridge_readout(train_x, train_angles, ridge: float):
     """A linear map from standardised features (+ bias) to (cos 2theta, sin 2theta), fit in closed form."""
-    mean, scale = train_x.mean(0), train_x.std(0) + 1e-6
-    design = lambda x: np.c_[(x - mean) / scale, np.ones(len(x))]
-    a = design(train_x)
-    weights = np.linalg.solve(a.T @ a + ridge * len(a) * np.eye(a.shape[1]), a.T @ doubled(train_angles))
-    return lambda x: design(x) @ weights
+    return ridge_fit(train_x, doubled(train_angles), ridge)
 
 
 def explained_share(features: np.ndarray, explanatory: np.ndarray) -> float:
