@@ -146,6 +146,9 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     # weight of the loss that asks the decoder, at each answer token, which slot holds the target grasp's
     # patch (train.loss.answer_pointing_sum; needs pointing_target "identity"); 0: none
     train.answer_pointing_loss = 0.0
+    # weight of the contrastive loss matching each instruction's words with the tower's feature at its
+    # grasp's patch among the batch's (train.phrase_patch.phrase_patch_sum); 0: none
+    train.phrase_patch_loss = 0.0
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

@@ -15,7 +15,8 @@ import pathlib
 import sys
 
 METRICS_FILE = "metrics.jsonl"
-AUXILIARY_LOSSES = ("pointing", "patch_angle", "tower_angle", "slot_angle", "tower_offset", "slot_offset", "answer_pointing")  # logged beside the loss when a run adds them
+AUXILIARY_LOSSES = ("pointing", "patch_angle", "tower_angle", "slot_angle", "tower_offset", "slot_offset", "answer_pointing",
+                    "phrase_patch")  # logged beside the loss when a run adds them
 
 
 def _plain(value):

@@ -43,6 +43,7 @@ from kosmos_jax.train.auxiliary import AuxiliaryLosses
 from kosmos_jax.train.loss import (answer_pointing_sum, circular_kernel, means, patch_angle_sum, pointing_sum,
                                    slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
                                    tower_offset_sum)
+from kosmos_jax.train.phrase_patch import phrase_patch_sum
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
@@ -148,7 +149,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     - tower_offset / slot_offset: `loss.tower_offset_sum` and `loss.slot_offset_sum`, the same two
       places read for where in its patch the grasp's centre lies;
     - answer_pointing: `loss.answer_pointing_sum`, the decoder's states at the loss positions asked
-      which image slot holds the target grasp's patch (the slots taught to be the patches).
+      which image slot holds the target grasp's patch (the slots taught to be the patches);
+    - phrase_patch: `phrase_patch.phrase_patch_sum`, each instruction's words matched with the tower's
+      feature at its grasp's patch among the (micro)batch's.
     Each is added to the loss with its weight. With `angle_smoothing` > 0 (a width in angle bins) the
     gradient is that of circular smooth labels on the angle tokens (`loss.smoothed_angle_sum`;
     angle_ids: each bin's token id), while `loss` stays the plain cross-entropy, comparable with runs
@@ -192,6 +195,10 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
         if "slot_offset" in weights:
             sums["slot_offset_sum"] = slot_offset_sum(image_embeds, batch["grasp"], side,
                                                       grid_side(features.shape[1] - 1), batch["loss_mask"])
+        if "phrase_patch" in weights:
+            sums["phrase_patch_sum"] = phrase_patch_sum(features, model.text_model.model.embed_tokens.embedding[...],
+                                                        batch["tokens"], attention_mask(batch), batch["image_mask"],
+                                                        batch["loss_mask"], batch["grasp"], side)
         if "answer_pointing" in weights:
             sums["answer_pointing_sum"] = answer_pointing_sum(hidden, batch["image_mask"], image_embeds.shape[1],
                                                                batch["grasp"], side, batch["loss_mask"])
