@@ -14,6 +14,7 @@ from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2, mesh
 from kosmos_jax.train import loss, optimizer, state, step
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
+from step_batches import answer_batch, constant_adamw
 
 TINY = model_config.TINY
 GRID = TINY.vision.image_size // TINY.vision.patch_size  # 8 x 8 patches
@@ -75,23 +76,11 @@ def test_answer_pointing_is_refused_unless_the_slots_are_taught_to_be_the_patche
 def test_the_train_step_logs_the_answer_pointing_and_identity_pointing_of_the_model_it_updates():
     """Step 0's logged losses are the loss functions of the initial model's own states, per loss token."""
     on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
-    opt = ml_collections.ConfigDict(dict(name="adamw", peak_lr=1e-3, end_lr=1e-3, warmup_steps=0, decay_steps=None,
-                                         b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
-    tx, schedule = optimizer.make_optimizer(opt, total_steps=1)
+    tx, schedule = optimizer.make_optimizer(constant_adamw(1e-3), total_steps=1)
     count, slots = 4, PATCH_SLOTS.latent_query_num
-    length = 2 + slots + 3
-    rng = np.random.default_rng(0)
-    image_mask = np.zeros((count, length), bool)
-    image_mask[:, 1:1 + slots] = True
-    loss_mask = np.zeros((count, length), bool)
-    loss_mask[:, -2:] = True
-    grasp = np.zeros((count, 5), np.float32)
-    grasp[:, :2] = rng.uniform(0, STORED, (count, 2))
-    grasp[3, :2] = np.nan  # no target grasp: adds to neither loss's pointer term
-    batch = dict(image=rng.integers(0, 256, (count, STORED, STORED, 3), dtype=np.uint8),
-                 tokens=rng.integers(3, TINY.text.vocab_size, (count, length)).astype(np.int32), loss_mask=loss_mask,
-                 image_mask=image_mask, length=np.full(count, length, np.int32), grasp=grasp,
-                 example_index=np.arange(count))
+    batch = answer_batch(np.random.default_rng(0), count, slots, words=1, stored=STORED,
+                         vocab=TINY.text.vocab_size)
+    batch["grasp"][3, :2] = np.nan  # no target grasp: adds to neither loss's pointer term
     model = nnx.view(kosmos2.build(PATCH_SLOTS), deterministic=True)
     jnp_batch = {key: jnp.asarray(value) for key, value in batch.items()}
     features = step.image_features(model, jnp_batch)

@@ -5,7 +5,6 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-import ml_collections
 import numpy as np
 import pytest
 from flax import nnx
@@ -14,6 +13,7 @@ from kosmos_jax.models import config as model_config
 from kosmos_jax.models import kosmos2, mesh
 from kosmos_jax.train import loss, optimizer, phrase_patch, state, step
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
+from step_batches import answer_batch, constant_adamw
 
 SIDE, GRID, STORED = 4, 4, 224  # a 4 x 4 patch grid of a 224 px view
 VISION, TEXT, VOCAB, LENGTH = 24, 16, 30, 10
@@ -119,22 +119,10 @@ def test_the_train_step_logs_the_phrase_patch_loss_of_the_model_it_updates():
     tiny = model_config.TINY.replace(text=dataclasses.replace(model_config.TINY.text, dropout=0.0,
                                                               attention_dropout=0.0))
     on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
-    opt = ml_collections.ConfigDict(dict(name="adamw", peak_lr=1e-3, end_lr=1e-3, warmup_steps=0, decay_steps=None,
-                                         b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
-    tx, schedule = optimizer.make_optimizer(opt, total_steps=1)
-    count, slots = 4, tiny.latent_query_num
-    length = 2 + slots + 6
-    rng = np.random.default_rng(0)
-    image_mask = np.zeros((count, length), bool)
-    image_mask[:, 1:1 + slots] = True
-    loss_mask = np.zeros((count, length), bool)
-    loss_mask[:, -2:] = True
-    grasp = np.zeros((count, 5), np.float32)
-    grasp[:, :2] = rng.uniform(0, STORED, (count, 2))
-    batch = dict(image=rng.integers(0, 256, (count, STORED, STORED, 3), dtype=np.uint8),
-                 tokens=rng.integers(3, tiny.text.vocab_size, (count, length)).astype(np.int32), loss_mask=loss_mask,
-                 image_mask=image_mask, length=np.full(count, length, np.int32), grasp=grasp,
-                 example_index=np.arange(count))
+    tx, schedule = optimizer.make_optimizer(constant_adamw(1e-3), total_steps=1)
+    count = 4
+    batch = answer_batch(np.random.default_rng(0), count, tiny.latent_query_num, words=4, stored=STORED,
+                         vocab=tiny.text.vocab_size)
     model = nnx.view(kosmos2.build(tiny), deterministic=True)
     jnp_batch = {key: jnp.asarray(value) for key, value in batch.items()}
     features = step.image_features(model, jnp_batch)

@@ -22,15 +22,14 @@ angle value tokens (numbers=digits) has no `decoder` place and reads one example
 
 from __future__ import annotations
 
-import json
 import sys
 
 import jax.numpy as jnp
 import numpy as np
-from absl import flags
 from flax import nnx
 
-from kosmos_jax import commands, geometry
+from kosmos_jax import geometry
+from kosmos_jax.diagnostics.readout_command import readout_command
 from kosmos_jax.diagnostics.readouts import ridge_fit
 from kosmos_jax.models.patch_grid import cell_index, grasp_cell_tokens, grid_side
 from kosmos_jax.models.decoder import position_ids
@@ -175,30 +174,12 @@ def angle_probe(workdir, step: int | None = None, examples: int = 3000, ridge: f
     return result
 
 
-def define_flags(flag_values: flags.FlagValues) -> None:
-    define = commands.definer(flag_values)
-    define("string", "workdir", None, "a KOSMOS-E training run's folder")
-    define("integer", "step", None, "checkpoint step (default: the newest)")
-    define("integer", "examples", 3000, "training views the readouts are fit on", lower_bound=2)
-    define("float", "ridge", 0.01, "ridge penalty per example, on standardised features")
-    define("bool", "json", False, "print the result as one JSON line")
-    flags.mark_flag_as_required("workdir", flag_values=flag_values)
-
-
 def main(argv=None) -> int:
-    return commands.run_command(define_flags, probe_command, argv, prog="python -m kosmos_jax.diagnostics.angle_probe",
-                                doc=__doc__)
+    return readout_command(argv, prog="python -m kosmos_jax.diagnostics.angle_probe", doc=__doc__, probe=angle_probe,
+                           report=print_report, examples=3000, examples_help="training views the readouts are fit on", least=2)
 
 
-def probe_command(args) -> int:
-    try:
-        result = angle_probe(args.workdir, args.step, args.examples, args.ridge)
-    except RunError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    if args.json:
-        print(json.dumps(result))
-        return 0
+def print_report(result: dict) -> None:
     print(f"step {result['step']}: share of views within {WITHIN_DEG:.0f} degrees ({result['train_views']} training "
           f"views, {result['test_views']} test views); share of each place's variance the angle and the cell explain")
     for name in ("trained", "untrained"):
@@ -210,7 +191,6 @@ def probe_command(args) -> int:
                 print(f"  {name} {place}: test {read['test']}%, train {read['train']}%, "
                       f"angle share {read['angle_share']}, cell share {read['cell_share']}")
     print(f"  constant mean orientation: test {result['constant']['test']}%")
-    return 0
 
 
 if __name__ == "__main__":

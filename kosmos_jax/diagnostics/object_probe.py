@@ -28,10 +28,9 @@ import sys
 
 import jax.numpy as jnp
 import numpy as np
-from absl import flags
 from flax import nnx
 
-from kosmos_jax import commands
+from kosmos_jax.diagnostics.readout_command import readout_command
 from kosmos_jax.diagnostics.readouts import accuracy, class_readout, majority_share
 from kosmos_jax.models.decoder import position_ids
 from kosmos_jax.models.kosmos2 import build, split_model
@@ -225,30 +224,12 @@ def object_probe(workdir, step: int | None = None, examples: int = 2000, ridge: 
     return result
 
 
-def define_flags(flag_values: flags.FlagValues) -> None:
-    define = commands.definer(flag_values)
-    define("string", "workdir", None, "a KOSMOS-E training run's folder (built from synthetic scenes)")
-    define("integer", "step", None, "checkpoint step (default: the newest)")
-    define("integer", "examples", 2000, "training mosaics the readouts are fit on", lower_bound=8)
-    define("float", "ridge", 0.01, "ridge penalty per example, on standardised features")
-    define("bool", "json", False, "print the result as one JSON line")
-    flags.mark_flag_as_required("workdir", flag_values=flag_values)
-
-
 def main(argv=None) -> int:
-    return commands.run_command(define_flags, probe_command, argv, prog="python -m kosmos_jax.diagnostics.object_probe",
-                                doc=__doc__)
+    return readout_command(argv, prog="python -m kosmos_jax.diagnostics.object_probe", doc=__doc__, probe=object_probe,
+                           report=print_report, examples=2000, examples_help="training mosaics the readouts are fit on", least=8)
 
 
-def probe_command(args) -> int:
-    try:
-        result = object_probe(args.workdir, args.step, args.examples, args.ridge)
-    except RunError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    if args.json:
-        print(json.dumps(result))
-        return 0
+def print_report(result: dict) -> None:
     print(f"step {result['step']}: readouts fit on {result['train_mosaics']} training mosaics, scored on "
           f"{result['scored_mosaics']} {result['scored_on']} mosaics (accuracy in percent)")
     where = {"tiles": "each quadrant's photo", "at_target": "the target (its patch)",
@@ -262,7 +243,6 @@ def probe_command(args) -> int:
             places = ", ".join(f"{place} {row[place]['test']} (train {row[place]['train']})" for place in ROUTES)
             print(f"  {name}: named quadrant, {group} kind(s), {row['test_examples']} mosaics: {places}; "
                   f"most common {row['majority']}")
-    return 0
 
 
 if __name__ == "__main__":

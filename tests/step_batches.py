@@ -1,0 +1,27 @@
+"""What the one-step train-step tests share: an AdamW at a constant learning rate and a batch of
+random images whose sequences are <s>, the image slots, </image>, a few instruction words and a
+two-token answer."""
+
+import ml_collections
+import numpy as np
+
+
+def constant_adamw(lr: float) -> ml_collections.ConfigDict:
+    return ml_collections.ConfigDict(dict(name="adamw", peak_lr=lr, end_lr=lr, warmup_steps=0, decay_steps=None,
+                                          b1=0.9, b2=0.98, eps=1e-6, weight_decay=0.0, clip_norm=1.0))
+
+
+def answer_batch(rng: np.random.Generator, count: int, slots: int, words: int, stored: int, vocab: int) -> dict:
+    """Numpy arrays of `count` examples: slots at positions 1..slots, `words` instruction tokens after
+    </image>, the loss on the last two tokens, a target grasp centre anywhere in the `stored` px view."""
+    length = 2 + slots + words + 2
+    image_mask = np.zeros((count, length), bool)
+    image_mask[:, 1:1 + slots] = True
+    loss_mask = np.zeros((count, length), bool)
+    loss_mask[:, -2:] = True
+    grasp = np.zeros((count, 5), np.float32)
+    grasp[:, :2] = rng.uniform(0, stored, (count, 2))
+    return dict(image=rng.integers(0, 256, (count, stored, stored, 3), dtype=np.uint8),
+                tokens=rng.integers(3, vocab, (count, length)).astype(np.int32), loss_mask=loss_mask,
+                image_mask=image_mask, length=np.full(count, length, np.int32), grasp=grasp,
+                example_index=np.arange(count))
