@@ -270,9 +270,7 @@ def build(config: BuildConfig, write: bool = True, tokenize: bool = True) -> dic
     `build_settings`: the input files by path, without "sha256". Either way "word_source",
     "kinds" (as resolved) and "photos" (how many were read) sit beside it."""
     source = pathlib.Path(config.source)
-    splits.refuse_public(config.protocol, "the KOSMOS-E dataset build")
-    if config.protocol not in ("honest", "paper"):
-        raise ValueError(f"protocol {config.protocol!r} must be 'honest' or 'paper'")
+    splits.check_kosmos_e_protocol(config.protocol, "the KOSMOS-E dataset build")
     if not source.is_dir():
         raise FileNotFoundError(f"source folder {source} does not exist")
     check_validation(config)

@@ -40,7 +40,7 @@ from kosmos_jax.sources.photo import Photo
 from kosmos_jax.instruct.sample import View
 
 RECIPES = ("random", "paper")
-PROTOCOLS = ("honest", "paper")
+PROTOCOLS = splits.KOSMOS_E_PROTOCOLS
 PAPER_TEST_VIEWS = AugmentConfig(centre_policy="gt_centroid", rotations_per_photo=3, translations_per_rotation=3,
                                  integer_steps=True)
 HONEST_TEST_CROP = AugmentConfig(centre_policy="image_centre", max_translation=0.0)
@@ -195,9 +195,7 @@ def _runs_of_one_shape(photos: Sequence[Photo], size: int):
 def evaluation_views(photos: Sequence[Photo], protocol: str = "honest", seed: int = 0, chunk: int = 32,
                      progress: bool = False) -> Views:
     """Test views of `photos` (with images) under `protocol`; deterministic for a seed."""
-    splits.refuse_public(protocol, "KOSMOS-E's evaluation views")
-    if protocol not in PROTOCOLS:
-        raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+    splits.check_kosmos_e_protocol(protocol, "KOSMOS-E's evaluation views")
     for photo in photos:
         if photo.rgb is None:
             raise ValueError(f"photo {photo.id} has no image: read it with load_images=True")

@@ -121,7 +121,7 @@ def row_label(row: dict, several_test_sets: bool) -> str:
 
 def markdown(results: dict, config) -> str:
     rows = results["rows"]
-    columns = [(p, s) for p in spec.parse_names(config.protocols, spec.PROTOCOLS, "protocol")
+    columns = [(p, s) for p in spec.parse_protocols(config.protocols)
                for s in spec.parse_names(config.schemes, spec.SCHEMES, "scheme")]
     several = len({tuple(r["tests_of"]) for r in rows if r["kind"] == "no_learning"}) > 1
     labels = list(dict.fromkeys(row_label(r, several) for r in rows))

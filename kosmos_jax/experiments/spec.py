@@ -33,7 +33,7 @@ from kosmos_jax.sources import splits
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SCHEMES = ("image", "object")
-PROTOCOLS = ("honest", "paper")
+PROTOCOLS = splits.KOSMOS_E_PROTOCOLS
 TASKS = ("kosmos_e", "baseline")
 FOLD_FIELDS = {  # task -> (protocol, scheme, fold, folds) fields of its training config
     "kosmos_e": ("data.build.protocol", "data.build.split", "data.build.fold", "data.build.folds"),

@@ -26,6 +26,7 @@ from jax.sharding import Mesh
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.value_decoding import value_picker
 from kosmos_jax.scoring import tally
+from kosmos_jax.scoring.fold_scores import WH_POLICY
 from kosmos_jax.scoring.model_answers import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
 from kosmos_jax.scoring.prompts import left_padded, prompt, target_ids
@@ -140,7 +141,7 @@ class GraspEvaluation:
                                                    ceiling)
         results = {"accuracy": tally.percent(success), "instructions": len(self.instructions),
                    "examples": self.examples, "protocol": self.protocol, "backend": self.backend,
-                   "wh_policy": tally.WH_POLICY[self.protocol],
+                   "wh_policy": WH_POLICY[self.protocol],
                    "constrained": decoding(success, held), "unconstrained": decoding(free_success, free),
                    "target_ceiling": tally.percent(ceiling),
                    "distinct": {"answers": tally.distinct(self.instructions, held),

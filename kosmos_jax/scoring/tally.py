@@ -16,7 +16,7 @@ import numpy as np
 from kosmos_jax import geometry
 from kosmos_jax.grasp_text import ParsedGrasp
 from kosmos_jax.metrics import grasp_success
-from kosmos_jax.scoring.fold_scores import WH_POLICY, metric_settings
+from kosmos_jax.scoring.fold_scores import metric_settings
 from kosmos_jax.scoring.instructions import Instruction, combine
 
 

@@ -44,6 +44,7 @@ PAPER_SEED = 123
 PAPER_COPIES_PER_PHOTO = 9
 PUBLIC = "public"
 PROTOCOLS = ("honest", "paper", PUBLIC)
+KOSMOS_E_PROTOCOLS = ("honest", "paper")  # what KOSMOS-E's builds, views and sweeps take
 PUBLIC_SEED = 123  # train_network.py's --random-seed
 PUBLIC_TRAIN_FRACTION = 0.9  # --split
 PUBLIC_REFUSED = ("protocol 'public' scores a baseline's quality, angle and width maps (GR-ConvNet, GG-CNN2: "
@@ -168,10 +169,13 @@ def public_split(photo_ids: Sequence[str], shuffle: bool, seed: int = PUBLIC_SEE
     return Split(sorted(ids[i] for i in order[:cut]), sorted(ids[i] for i in order[cut:]))
 
 
-def refuse_public(protocol: str, where: str) -> None:
-    """A ValueError saying why, when a KOSMOS-E stage (`where`) is handed the baselines' protocol."""
+def check_kosmos_e_protocol(protocol: str, where: str) -> None:
+    """A ValueError naming `where` (a KOSMOS-E stage) unless `protocol` is one of KOSMOS_E_PROTOCOLS;
+    for the baselines' `public`, saying why."""
     if protocol == PUBLIC:
         raise ValueError(f"{where}: {PUBLIC_REFUSED}")
+    if protocol not in KOSMOS_E_PROTOCOLS:
+        raise ValueError(f"{where}: unknown protocol {protocol!r}; expected one of {KOSMOS_E_PROTOCOLS}")
 
 
 def folds_to_split(items: Sequence, folds: Sequence[int], fold: int, k: int) -> Split:
