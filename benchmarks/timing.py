@@ -18,6 +18,22 @@ def best_time(fn, *args, repeats: int = 5) -> float:
     return min(times)
 
 
+def interleaved_times(calls: dict, rounds: int = 8) -> dict:
+    """Each of `calls` (name -> function of no argument) timed once a round, in turn, for `rounds`
+    rounds after one warm-up call each: a neighbour's load then falls on every contestant alike.
+    name -> {"min": seconds, "median": seconds, "rounds": every round's seconds}."""
+    for call in calls.values():
+        jax.block_until_ready(call())
+    times = {name: [] for name in calls}
+    for _ in range(rounds):
+        for name, call in calls.items():
+            start = time.perf_counter()
+            jax.block_until_ready(call())
+            times[name].append(time.perf_counter() - start)
+    return {name: {"min": min(t), "median": sorted(t)[len(t) // 2], "rounds": [round(x, 4) for x in t]}
+            for name, t in times.items()}
+
+
 def matmul_peak(sizes=(1024, 2048, 4096)) -> dict:
     """Best float32 GFLOP/s over square matmuls."""
     results = {}

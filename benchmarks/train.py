@@ -2,11 +2,13 @@
 the data wait over a 50-step run, 1 device against 8 fake devices, checkpoint save time against
 step time.
 
-    GLIBC_TUNABLES=glibc.malloc.hugetlb=1 .venv/bin/python benchmarks/train.py [--steps 50]
+    GLIBC_TUNABLES=glibc.malloc.hugetlb=1 .venv/bin/python benchmarks/train.py [--steps 50] [--out RECORD.json]
 
 Peers, each measured in this run: the float32 matmul peak (MFU's denominator), the forward+backward
 without clipping or AdamW (what the step adds), the step on 1 device (what 8 fake devices cost),
-the step (what a checkpoint save costs). FLOPs are XLA's count of each compiled program.
+the step (what a checkpoint save costs). FLOPs are XLA's count of each compiled program. The full
+step and forward+backward are timed in turn, round after round (`--rounds`), so that a neighbour's
+load falls on both alike; each figure is its best round, with the median beside it.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 import optax
 from flax import nnx
 
-from timing import best_time, matmul_peak  # benchmarks/timing.py, beside this script
+from timing import best_time, interleaved_times, matmul_peak  # benchmarks/timing.py, beside this script
 from kosmos_jax.models import config as config_lib
 from kosmos_jax.models.flops import xla_flops
 from kosmos_jax.models.kosmos2 import build, split_model
@@ -70,7 +72,8 @@ def full_step(cfg, batch: dict, mesh_sizes=(1, 1, 1)) -> dict:
         holder["state"], metrics = compiled(holder["state"], placed)  # the state is donated: carry it on
         return metrics
 
-    return {"step_seconds": best_time(one, repeats=5), "flops": flops, "state": holder["state"]}
+    return {"step_seconds": best_time(one, repeats=5), "flops": flops, "call": one,
+            "live_state": lambda: holder["state"]}  # each call of `one` donates the state before it
 
 
 def forward_backward(cfg, batch: dict) -> dict:
@@ -85,7 +88,8 @@ def forward_backward(cfg, batch: dict) -> dict:
         return optax.softmax_cross_entropy_with_integer_labels(logits[:, :-1], batch["tokens"][:, 1:]).mean()
 
     compiled = jax.jit(jax.grad(loss)).lower(params, arrays).compile()
-    return {"step_seconds": best_time(compiled, params, arrays, repeats=5), "flops": xla_flops(compiled)}
+    return {"step_seconds": best_time(compiled, params, arrays, repeats=5), "flops": xla_flops(compiled),
+            "call": lambda: compiled(params, arrays)}
 
 
 def checkpoint_save(state, step_seconds: float) -> dict:
@@ -139,6 +143,8 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--length", type=int, default=128)
     parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--rounds", type=int, default=8, help="rounds of the full step and forward+backward, in turn")
+    parser.add_argument("--out", help="also write the report to this JSON file")
     parser.add_argument("--only-devices", type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args()
     cfg = config_lib.get_config("small")
@@ -150,6 +156,8 @@ def main() -> None:
     before = matmul_peak()
     full = full_step(cfg, batch)
     alone = forward_backward(cfg, batch)
+    timed = interleaved_times({"full": full["call"], "alone": alone["call"]}, args.rounds)
+    full["step_seconds"], alone["step_seconds"] = timed["full"]["min"], timed["alone"]["min"]
     after = matmul_peak()
     peak = max(before["peak_gflops"], after["peak_gflops"])
     mfu = lambda run: round(run["flops"] / run["step_seconds"] / 1e9 / peak, 3)
@@ -157,10 +165,16 @@ def main() -> None:
         "device": str(jax.devices()[0].device_kind), "size": "small", "batch": args.batch, "length": args.length,
         "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
         "matmul_float32_peak_gflops": round(peak, 1),
-        "full_step": {"seconds": round(full["step_seconds"], 4), "flops": full["flops"], "mfu": mfu(full)},
-        "forward_backward_alone": {"seconds": round(alone["step_seconds"], 4), "flops": alone["flops"], "mfu": mfu(alone)},
+        "timing": f"best of {args.rounds} rounds, the full step and forward+backward in turn",
+        "full_step": {"seconds": round(full["step_seconds"], 4), "median_seconds": round(timed["full"]["median"], 4),
+                      "rounds_seconds": timed["full"]["rounds"],
+                      "flops": full["flops"], "mfu": mfu(full)},
+        "forward_backward_alone": {"seconds": round(alone["step_seconds"], 4),
+                                   "median_seconds": round(timed["alone"]["median"], 4),
+                                   "rounds_seconds": timed["alone"]["rounds"],
+                                   "flops": alone["flops"], "mfu": mfu(alone)},
         "full_step_time_over_forward_backward": round(full["step_seconds"] / alone["step_seconds"], 3),
-        "checkpoint": checkpoint_save(full["state"], full["step_seconds"]),
+        "checkpoint": checkpoint_save(full["live_state"](), full["step_seconds"]),
     }
     eight = eight_devices(args.batch, args.length)
     report["devices"] = {"one_device_step_seconds": round(full["step_seconds"], 4),
@@ -170,6 +184,8 @@ def main() -> None:
     if min(before["peak_gflops"], after["peak_gflops"]) < 0.8 * peak:
         report["warning"] = "matmul peak moved by over 20% during the run: the machine is shared, rerun"
     print(json.dumps(report, indent=2))
+    if args.out:
+        pathlib.Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
 
 
 if __name__ == "__main__":
