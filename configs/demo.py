@@ -5,6 +5,7 @@
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=   # baselines only
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_photos \
         --config.init_from=                                        # the demo model from scratch
+    python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 
 import ml_collections
@@ -16,6 +17,7 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
     config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_photos_finetune"  # "": no training
     config.steps = 0  # 0: the training config's own train.steps
+    config.train_seed = 0  # the run's train.seed (init, dropout, batch order); another seed wants its own config.out
     # a run's workdir or an exported folder to start from (relative to the repository root), given to the
     # training config as its config.init_from; "": from scratch. The default is the committed start
     # pretrained on 1,200 photos of seed 1000, none of them a demo test photo (results/pretrain/README.md)

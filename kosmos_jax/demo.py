@@ -86,6 +86,7 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     train_config = spec.load_config(config.train_config)
     if config.steps:
         train_config.train.steps = config.steps
+    train_config.train.seed = config.train_seed
     if config.init_from:
         start = REPO / config.init_from  # an absolute path stays itself
         if not start.is_dir():

@@ -170,3 +170,8 @@ def test_a_non_finite_step_stops_the_run_naming_the_step_and_its_examples(datase
 def test_resuming_with_another_model_is_refused(reference, dataset_dir):
     done = train(reference, dataset_dir, f"--config.train.steps={STEPS + 5}", "--config.model.text.layers=3", expect=1)
     assert "another model" in done.stderr
+
+
+def test_resuming_with_another_seed_is_refused(reference, dataset_dir):
+    done = train(reference, dataset_dir, f"--config.train.steps={STEPS + 5}", "--config.train.seed=1", expect=1)
+    assert "train.seed=0, not 1" in done.stderr

@@ -134,6 +134,10 @@ def check_same_run(stored: dict, current: dict, workdir) -> None:
         if stored.get(field, STORED_BEFORE.get(field)) != current.get(field, STORED_BEFORE.get(field)):
             raise RunMismatchError(f"{workdir} holds a run of another {what} than this config's; "
                                    "resume it with its own config or use a new --workdir")
+    stored_seed, seed = stored.get("rng", {}).get("seed"), current.get("rng", {}).get("seed")
+    if stored_seed != seed and stored_seed is not None:
+        raise RunMismatchError(f"{workdir} holds a run of train.seed={stored_seed}, not {seed}; "
+                               "resume it with its own seed or use a new --workdir")
 
 
 def evaluate(eval_step, params, split, config, sharding) -> dict:
