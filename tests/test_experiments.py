@@ -436,6 +436,20 @@ def test_the_cpu_demo_data_sweep_counts_photos_and_augmentations():
     assert config.schemes == "image,object"
 
 
+def test_the_pretrained_data_sweep_fine_tunes_the_shipped_start_on_more_and_more_photos():
+    """make demo's recipe at four photo counts, 1,200 being the demo's own data; three folds for the spread."""
+    tune = spec.load_config("configs/kosmos_e.py:demo_photos_finetune")
+    config = spec.load_config("configs/experiments/data_size.py:cpu_pretrained")
+    built = {n: spec.arm_config(config, n) for n in spec.arm_names(config)}
+    assert sorted(b.data.synthetic_photos for b in built.values()) == [150, 300, 600, 1200]
+    assert built["photos1200_aug4"].data == tune.data
+    for b in built.values():
+        assert b.init_from == "results/pretrain/demo_photos1200" and (spec.REPO / b.init_from).is_dir()
+        assert b.model == tune.model and b.optimizer == tune.optimizer and b.train == tune.train and b.require_init
+        assert b.data.build.augmentations == 4 and b.data.build.kinds == "non"
+    assert spec.parse_folds(config.folds, config.k) == [0, 1, 2] and config.schemes == "image"
+
+
 def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():
     """Their rows sit beside the cpu variants' (whose baselines they do not train again): same data,
     schemes, first fold and instruction kinds."""

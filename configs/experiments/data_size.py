@@ -18,6 +18,11 @@ crops, value tokens, the pointing connector), whose answers do depend on the pho
 1,000 photos of 16 augmentations, and 4, 8 and 16 augmentations of 300 photos, 800 steps each (the
 demo's own schedule; 300 photos of 16 is the demo), honest protocol, image- and object-wise fold 0
 by default. About 11 to 15 minutes an arm on 2 cores.
+cpu_pretrained: the "photos" series with `make demo`'s recipe, the committed start
+results/pretrain/demo_photos1200 (pretrained on 1,200 photos of seed 1000, none of them a test photo)
+fine-tuned for 800 steps (configs/kosmos_e.py:demo_photos_finetune) on 150, 300, 600 and 1,200 photos
+of seed 0, 4 augmentations each (1,200 is the demo's own data); honest protocol, image-wise folds 0, 1
+and 2 for the spread. About 10 minutes a fold on 2 quiet cores.
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.
@@ -30,7 +35,8 @@ tell them from today's recipe, so a rerun must not carry them in.
 from kosmos_jax.experiments.spec import arm, experiment
 
 CPU_STEPS = 200
-VARIANTS = ("cpu", "cpu_demo", "paper")
+VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "paper")
+SHIPPED_START = "results/pretrain/demo_photos1200"  # relative to the repository root, where the runner is started
 
 
 def get_config(arg: str | None = None):
@@ -57,6 +63,11 @@ def get_config(arg: str | None = None):
         arms["photos300_aug16"] = demo_arm(300, 16, "augmentations,photos")
         arms.update({f"photos300_aug{a}": demo_arm(300, a, "augmentations") for a in (4, 8)})
         return experiment("data_size", arms, schemes="image,object", protocols="honest", folds="0", data_size_plot=True)
+    if variant == "cpu_pretrained":
+        arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos_finetune", {
+            "data.synthetic_photos": p, "data.build.kinds": "non", "init_from": SHIPPED_START}, series="photos")
+            for p in (150, 300, 600, 1200)}
+        return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
     arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
             for a in (4, 8, 16, 32)}
     arms.update({f"synthetic{p}": arm("configs/kosmos_e.py:paper", {
