@@ -70,28 +70,34 @@ def view_batch(channels: int, batch: int, seed: int = 0) -> dict:
     return {"image": jnp.asarray(images), "grasps": jnp.asarray(grasps), "mask": jnp.asarray(mask)}
 
 
-def baseline(variant: str, batch: int, predict_batch: int) -> dict:
-    """The trainer's step and the prediction of one configs/baselines.py variant, in seconds."""
+def trainer_step(variant: str, batch: int):
+    """The trainer's own step of one configs/baselines.py variant on one device, compiled on first call:
+    (family, call: one step of no argument, state: the state now, which each call donates and replaces)."""
     config = baseline_configs.get_config(variant)
     family = make_family(family_config(config.model))
-    channels = input_channels(family.config.mode)
     mesh = make_mesh(1, 1, 1, devices=jax.devices()[:1])
     tx, schedule = make_optimizer(config.optimizer, config.train.steps)
     state = initial_state(family, tx, config.train.seed)
     sharding = jax.tree.map(lambda _: replicated(mesh), state)
-    state = jax.device_put(state, sharding)
     step = make_baseline_step(family, tx, schedule, mesh, sharding)
-    inputs = view_batch(channels, batch)
-    holder = {"state": state}
+    inputs = view_batch(input_channels(family.config.mode), batch)
+    holder = {"state": jax.device_put(state, sharding)}
 
     def one():
         holder["state"], metrics = step(holder["state"], inputs)  # the state is donated: carry it on
         return metrics
 
+    return family, one, lambda: holder["state"]
+
+
+def baseline(variant: str, batch: int, predict_batch: int) -> dict:
+    """The trainer's step and the prediction of one configs/baselines.py variant, in seconds."""
+    family, one, current_state = trainer_step(variant, batch)
+    channels = input_channels(family.config.mode)
     step_seconds = best_time(one, repeats=5)
     predict = jax.jit(family.predict)
     images = view_batch(channels, predict_batch, seed=1)["image"]
-    state = holder["state"]
+    state = current_state()
     predict_seconds = best_time(predict, state.params, state.model_state, images, repeats=5)
     parameters = sum(x.size for x in jax.tree.leaves(state.params))
     return {"network": family.config.network, "mode": family.config.mode, "channels_in": channels,
@@ -103,7 +109,7 @@ def kosmos_e_small(batch: int, length: int, predict_batch: int) -> dict:
     format_config = FormatConfig()  # xya, angle code, individual answers: the paper's best
     tokenizer = project_tokenizer(None, format_config)
     cfg = config_lib.get_config("small", latent_query_num=special.IMAGE_SLOTS).with_vocab_size(tokenizer.vocab_size)
-    step_seconds = full_step(cfg, random_batch(cfg, batch, length))["step_seconds"]
+    step_seconds = best_time(full_step(cfg, random_batch(cfg, batch, length))["call"], repeats=5)
     params = split_model(build(cfg, seed=1))[1]
     decoder = Decoder(cfg, make_mesh(1, 1, 1, devices=jax.devices()[:1]))
     size = cfg.vision.image_size

@@ -35,15 +35,13 @@ import numpy as np
 import optax
 from flax import nnx
 
-from baselines import baseline_configs, view_batch  # benchmarks/baselines.py, beside this script
+from baselines import baseline_configs, trainer_step  # benchmarks/baselines.py, beside this script
 from timing import interleaved_times  # benchmarks/timing.py
 from kosmos_jax.baselines.family import make_family
 from kosmos_jax.baselines.layers import GraspMaps, input_channels
 from kosmos_jax.baselines.losses import per_image
-from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.train.baseline_task import family_config, initial_state, make_baseline_step
-from kosmos_jax.train.mesh import replicated
-from kosmos_jax.train.optimizer import make_optimizer
+from kosmos_jax.models.flops import xla_flops
+from kosmos_jax.train.baseline_task import family_config
 
 VARIANTS = ("grconvnet_rgbd", "ggcnn2_d")
 VIEW = 224
@@ -87,32 +85,13 @@ def jax_step(variant: str, images: np.ndarray, targets: np.ndarray):
 
     holder = {"state": (params, rest, tx.init(params))}
     images, targets = jnp.asarray(images), jnp.asarray(targets)
-    flops = step.lower(holder["state"], images, targets).compile().cost_analysis()["flops"]
+    flops = xla_flops(step.lower(holder["state"], images, targets).compile())
 
     def one():
         holder["state"], value = step(holder["state"], images, targets)  # donated: carry it on
         return value
 
     return one, float(flops), int(sum(x.size for x in jax.tree.leaves(params)))
-
-
-def trainer_step(variant: str, batch: int):
-    """A zero-argument call of the trainer's own baseline step (benchmarks/baselines.py's setup)."""
-    config = baseline_configs.get_config(variant)
-    family = make_family(family_config(config.model))
-    mesh = make_mesh(1, 1, 1, devices=jax.devices()[:1])
-    tx, schedule = make_optimizer(config.optimizer, config.train.steps)
-    state = initial_state(family, tx, config.train.seed)
-    sharding = jax.tree.map(lambda _: replicated(mesh), state)
-    step = make_baseline_step(family, tx, schedule, mesh, sharding)
-    holder = {"state": jax.device_put(state, sharding)}
-    inputs = view_batch(input_channels(family.config.mode), batch)
-
-    def one():
-        holder["state"], metrics = step(holder["state"], inputs)
-        return metrics
-
-    return one
 
 
 def torch_grconvnet(torch, in_channels: int, c: int = 16):
@@ -186,7 +165,7 @@ def measure(torch, variant: str, batch: int, rounds: int) -> dict:
     if jax_parameters != torch_parameters:
         raise AssertionError(f"{variant}: {jax_parameters} parameters in JAX, {torch_parameters} in PyTorch")
     times = interleaved_times({"jax": ours, "torch": peer, "torch_channels_last": peer_nhwc,
-                               "jax_trainer": trainer_step(variant, batch)}, rounds)
+                               "jax_trainer": trainer_step(variant, batch)[1]}, rounds)
     best = {name: t["min"] for name, t in times.items()}
     return {"parameters": jax_parameters, "step_gflop": round(flops / 1e9, 2),
             **{f"{name}_seconds": round(s, 4) for name, s in best.items()},
