@@ -10,6 +10,8 @@
 
 import ml_collections
 
+from kosmos_jax.experiments.spec import SHIPPED_START
+
 
 def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     tiny = arg == "tiny"
@@ -17,11 +19,11 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
     config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_photos_finetune"  # "": no training
     config.steps = 0  # 0: the training config's own train.steps
-    config.train_seed = 0  # the run's train.seed (init, dropout, batch order); another seed wants its own config.out
+    config.train_seed = -1  # -1: the training config's own train.seed; another seed wants its own config.out
     # a run's workdir or an exported folder to start from (relative to the repository root), given to the
     # training config as its config.init_from; "": from scratch. The default is the committed start
     # pretrained on 1,200 photos of seed 1000, none of them a demo test photo (results/pretrain/README.md)
-    config.init_from = "" if tiny else "results/pretrain/demo_photos1200"
+    config.init_from = "" if tiny else SHIPPED_START
     config.photos = 24 if tiny else 60  # synthetic photos of the no-learning table (object-wise needs >= 5 objects)
     config.seed = 0
     # the trained model on scenes it never saw (another seed): NON on each, multi-object kinds on mosaics

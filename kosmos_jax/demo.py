@@ -86,7 +86,8 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     train_config = spec.load_config(config.train_config)
     if config.steps:
         train_config.train.steps = config.steps
-    train_config.train.seed = config.train_seed
+    if config.train_seed >= 0:
+        train_config.train.seed = config.train_seed
     if config.init_from:
         start = REPO / config.init_from  # an absolute path stays itself
         if not start.is_dir():

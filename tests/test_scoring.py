@@ -251,3 +251,17 @@ def test_demo_refuses_fresh_photos_of_the_training_seed(tmp_path):
     with pytest.raises(ValueError, match="fresh_seed=0 is the training scenes' seed"):
         demo.fresh_rows(config, spec.load_config(config.train_config), tmp_path, tmp_path / "run", 1)
     assert not list(tmp_path.iterdir())  # refused before writing anything
+
+
+@pytest.mark.parametrize("train_seed,expected", [(-1, 0), (3, 3)])
+def test_demo_trains_with_its_train_seed_or_the_training_config_s_own(tmp_path, monkeypatch, train_seed, expected):
+    trained = []
+
+    def stopped_train(train_config, workdir):
+        trained.append(train_config.train.seed)
+        return {"finished": False, "step": 0}
+
+    monkeypatch.setattr(demo.runner, "default_train", stopped_train)
+    with pytest.raises(SystemExit, match="training stopped at step 0"):
+        demo.trained_rows(demo_config(tmp_path, train_seed=train_seed), tmp_path)
+    assert trained == [expected]  # configs/kosmos_e.py:tiny's own seed is 0
