@@ -32,11 +32,10 @@ slot-angle losses (2026-11-26) and before fold records kept their recipe: --reco
 tell them from today's recipe, so a rerun must not carry them in.
 """
 
-from kosmos_jax.experiments.spec import arm, experiment
+from kosmos_jax.experiments.spec import SHIPPED_START, arm, experiment
 
 CPU_STEPS = 200
 VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "paper")
-SHIPPED_START = "results/pretrain/demo_photos1200"  # relative to the repository root, where the runner is started
 
 
 def get_config(arg: str | None = None):

@@ -29,14 +29,13 @@ slot-angle losses (2026-11-26) and before fold records kept their recipe: --reco
 tell them from today's recipe, so a rerun must not carry them in.
 """
 
-from kosmos_jax.experiments.spec import arm, experiment
+from kosmos_jax.experiments.spec import SHIPPED_START, arm, experiment
 
 CPU_STEPS = 300  # KOSMOS-E demo model, batch 32
 CPU_BASELINE_STEPS = {"grconvnet_rgbd": 120, "grconvnet_rgb": 120, "ggcnn2_d": 400}
 PAPER_BASELINE_STEPS = 20_000  # batch 8: about 14 epochs of the 708 x 16 training views of a full Cornell fold
 BASELINES = ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d")
 VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "paper")
-SHIPPED_START = "results/pretrain/demo_photos1200"  # relative to the repository root, where the runner is started
 
 
 def get_config(arg: str | None = None):

@@ -40,6 +40,9 @@ FOLD_FIELDS = {  # task -> (protocol, scheme, fold, folds) fields of its trainin
     "baseline": ("data.protocol", "data.scheme", "data.fold", "data.folds"),
 }
 KOSMOS_TOKENIZER = "sentencepiece.bpe.model"  # the tokenizer file of a KOSMOS-2 folder
+# the committed pretrained start that make demo and the pretrained arms fine-tune (results/pretrain/README.md),
+# relative to the repository root, where the demo and the runner are started
+SHIPPED_START = "results/pretrain/demo_photos1200"
 
 
 class ExperimentError(ValueError):
