@@ -538,6 +538,29 @@ def test_records_of_an_arm_whose_config_file_changed_are_refused(tmp_path, monke
     spec.check_recipe(old_record, fold, "an old record")
 
 
+class FillingTrainer(FakeTrainer):
+    """Fills in a field of the config it is given, as the trainer fills in a pretrained start's tokenizer."""
+
+    def __call__(self, config, workdir):
+        with config.unlocked():
+            config.train.seed += 7
+        return super().__call__(config, workdir)
+
+
+def test_a_trainer_filling_in_its_config_leaves_the_record_resumable(tmp_path):
+    """The record keeps the fingerprint of the config the rerun resolves to, not of the trainer's
+    filled-in copy: a rerun and --records_from skip the folds instead of refusing them."""
+    config = baseline_experiment(folds="0")
+    sweep(config, tmp_path / "old", FillingTrainer())
+    fold = spec.fold_config(spec.arm_config(config, "b1"), spec.runs(config)[0], config.k)
+    record = json.loads((tmp_path / "old" / "b1" / "honest-image-fold0" / records.FOLD_FILE).read_text())
+    assert record["recipe"] == spec.recipe(fold)
+    trainer = FakeTrainer()
+    assert sweep(config, tmp_path / "old", trainer)["skipped"] == 4 and trainer.calls == []
+    carried.send_out(config, tmp_path / "old", tmp_path / "kept")
+    assert len(carried.bring_in(config, tmp_path / "kept", tmp_path / "new")) == 4
+
+
 # -- the command and the launcher ------------------------------------------------------------------
 
 

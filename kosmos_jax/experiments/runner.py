@@ -16,6 +16,7 @@ the invocation that finished it (its record's train.resumed_from says whether an
 
 from __future__ import annotations
 
+import copy
 import datetime
 import json
 import pathlib
@@ -89,8 +90,11 @@ def now() -> str:
 def run_fold(config, run: spec.Run, fold_config, root, *, train: Callable, evaluate: Callable, command: str) -> dict:
     """Train, score and record one fold; returns its record."""
     workdir = run.workdir(root)
+    fingerprint = spec.recipe(fold_config)
     started = time.perf_counter()
-    summary = train(fold_config, workdir)
+    # the trainer fills in a pretrained start's tokenizer: on a copy, so the record keeps the recipe that
+    # a rerun resolves to (and checks) instead of the filled-in one
+    summary = train(copy.deepcopy(fold_config), workdir)
     trained = time.perf_counter()
     if not summary.get("finished"):
         raise SweepStopped(f"{run.name}: training stopped at step {summary.get('step')} "
@@ -104,7 +108,7 @@ def run_fold(config, run: spec.Run, fold_config, root, *, train: Callable, evalu
     record = {
         "experiment": config.name, "arm": run.arm, "protocol": run.protocol, "scheme": run.scheme, "fold": run.fold,
         "k": config.k, "series": entry.series, "arm_config": entry.config, "overrides": spec.dotted(entry.overrides),
-        "task": spec.task_of(fold_config), "recipe": spec.recipe(fold_config), "workdir": str(workdir),
+        "task": spec.task_of(fold_config), "recipe": fingerprint, "workdir": str(workdir),
         "accuracy": results["accuracy"], "by_kind": results.get("by_kind", {}), "by_scene": results.get("by_scene", {}),
         "eval": {key: results.get(key) for key in ("step", "split", "instructions", "examples", "protocol", "backend")},
         "unconstrained": results.get("unconstrained"),
