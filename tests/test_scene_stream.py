@@ -2,6 +2,7 @@
 chunks that never repeat a scene or an example index, processes that split each global batch, and
 stream seeds that can never reach the test split's scenes."""
 
+import json
 import pathlib
 import signal
 import subprocess
@@ -16,7 +17,9 @@ from kosmos_jax.experiments.spec import load_config
 from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train import trainer
 from kosmos_jax.train.metrics_log import train_losses
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.train.scene_stream import CHUNK_STRIDE, SceneStream
+from kosmos_jax.train.tower_category import CATEGORY_NAMES
 
 pytestmark = pytest.mark.xdist_group("scene_stream")
 
@@ -86,6 +89,25 @@ def test_two_processes_split_each_global_batch(stream_parts, five):
 def test_a_batch_the_processes_cannot_share_is_refused(stream_parts):
     with pytest.raises(ValueError, match="not divisible by the 3 processes"):
         stream(stream_parts, global_batch=8, process_count=3)
+
+
+def test_each_example_carries_its_target_objects_category(stream_parts, tmp_path):
+    """Oracle: the chunk's scenes written again from their seed, and the photo whose place holds the
+    target grasp (a mosaic's quadrant in its photo order, or the one photo)."""
+    config, _, _ = stream_parts
+    chunk = stream(stream_parts).chunk(0)
+    scenes.write_dataset(tmp_path / "scenes", photos=config.data.stream.photos, seed=config.data.stream.seed)
+    meta = json.loads((tmp_path / "scenes" / scenes.META_NAME).read_text())["photos"]
+    side = chunk.arrays["image"].shape[1]
+    mosaics = 0
+    for row, label in enumerate(chunk.labels):
+        photos = label.split(" (")[0].split("+")
+        x, y = chunk.arrays["grasp"][row, :2]
+        place = 0 if len(photos) == 1 else 2 * int(y >= side / 2) + int(x >= side / 2)
+        mosaics += len(photos) == 4
+        assert chunk.arrays["category"][row] == CATEGORY_NAMES.index(meta[photos[place]]["category"]), label
+    assert mosaics and mosaics < len(chunk.labels)
+    assert set(chunk.arrays["category"].tolist()) == {CATEGORY_NAMES.index(m["category"]) for m in meta.values()}
 
 
 def test_stream_seeds_must_lie_above_the_test_scenes_seed():

@@ -258,7 +258,8 @@ def fold_config(base, run: Run, k: int) -> ml_collections.ConfigDict:
 ADDED_AT = {"init_step": -1, "data.build.tokenizer_scheme": "fairseq", "data.stream.photos": 0,
             "data.stream.seed": 10_000, "train.pointing_target": "cell",
             "train.tower_offset_loss": 0.0, "train.slot_offset_loss": 0.0, "decode.value_window": 0,
-            "decode.angle_window": 0, "train.phrase_patch_loss": 0.0}
+            "decode.angle_window": 0, "train.phrase_patch_loss": 0.0,
+            "train.tower_category_loss": 0.0}
 
 
 def recipe(fold_config) -> str:

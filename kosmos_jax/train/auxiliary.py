@@ -27,6 +27,7 @@ class AuxiliaryLosses:
     slot_offset_loss: float = 0.0
     answer_pointing_loss: float = 0.0  # needs the slots to be the patches: pointing_target "identity"
     phrase_patch_loss: float = 0.0  # the instruction's words against the tower's grasp patch (train.phrase_patch)
+    tower_category_loss: float = 0.0  # the tower's grasp patch read as its object's category (train.tower_category)
 
     def __post_init__(self):
         if self.pointing_target not in POINTING_TARGETS:

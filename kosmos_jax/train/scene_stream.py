@@ -9,13 +9,15 @@ remakes that chunk, so a resumed run sees the same batches as one never stopped.
 is made in a background thread while the current one is read.
 
 An example's `example_index` is chunk * CHUNK_STRIDE + its place in the chunk: unique across the
-stream, so dropout masks (drawn from it) never repeat either.
+stream, so dropout masks (drawn from it) never repeat either. Its `category` is the label of its
+target object's category (`tower_category`), which only scenes made here can give.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import json
 import pathlib
 import sys
 import tempfile
@@ -30,8 +32,16 @@ from kosmos_jax.dataset.pipeline import to_arrays
 from kosmos_jax.dataset.tfds_builders import example_record
 from kosmos_jax.dataset.views import augment_config, make_views
 from kosmos_jax.text import layout
+from kosmos_jax.train.step import CATEGORY_KEY
+from kosmos_jax.train.tower_category import category_label
 
 CHUNK_STRIDE = 10**7  # more examples than any chunk makes
+
+
+def photo_categories(source: pathlib.Path) -> dict[str, int]:
+    """{photo id: its object's category label} from a synthetic source folder's metadata."""
+    photos = json.loads((source / scenes.META_NAME).read_text())["photos"]
+    return {photo_id: category_label(meta["category"]) for photo_id, meta in photos.items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +60,7 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
         scenes.write_dataset(source, photos=photos, seed=scene_seed)
         photo_list, image_files = read_photos(source)
         words = object_words(word_source(source, None), photo_list, image_files)
+        categories = photo_categories(source)
     index = {p.id: i for i, p in enumerate(photo_list)}
     made, _ = make_views(photo_list, words, augment_config(config.augmentations, config.recipe,
                                                            config.train_crop or "gt_centroid"),
@@ -63,7 +74,9 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
             too_long += 1
             continue
         record = example_record(encoded, example)
-        rows.append(to_arrays(record, max_answers=64, example_index=number * CHUNK_STRIDE + len(rows)))
+        arrays = to_arrays(record, max_answers=64, example_index=number * CHUNK_STRIDE + len(rows))
+        arrays[CATEGORY_KEY] = np.int32(categories[example.photo_ids[example.target]])
+        rows.append(arrays)
         labels.append(f"{'+'.join(example.photo_ids)} ({sample_stage.kind_label(sample)})")
     order = np.random.default_rng([scene_seed, number]).permutation(len(rows))
     arrays = {name: np.stack([rows[i][name] for i in order]) for name in rows[0]}

@@ -44,11 +44,18 @@ from kosmos_jax.train.loss import (answer_pointing_sum, circular_kernel, means, 
                                    slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
                                    tower_offset_sum)
 from kosmos_jax.train.phrase_patch import phrase_patch_sum
+from kosmos_jax.train.tower_category import tower_category_sum
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
 BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp")
 TRAIN_KEYS = BATCH_KEYS + ("example_index",)  # the train step's: the examples' ids key their dropout masks
+CATEGORY_KEY = "category"  # the target object's category, made only by the scene stream (train.tower_category)
+
+
+def train_keys(auxiliary: AuxiliaryLosses) -> tuple[str, ...]:
+    """The batch fields the train step with these losses reads."""
+    return TRAIN_KEYS + ((CATEGORY_KEY,) if auxiliary.tower_category_loss else ())
 _DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
 
 
@@ -151,7 +158,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
     - answer_pointing: `loss.answer_pointing_sum`, the decoder's states at the loss positions asked
       which image slot holds the target grasp's patch (the slots taught to be the patches);
     - phrase_patch: `phrase_patch.phrase_patch_sum`, each instruction's words matched with the tower's
-      feature at its grasp's patch among the (micro)batch's.
+      feature at its grasp's patch among the (micro)batch's;
+    - tower_category: `tower_category.tower_category_sum`, the tower's feature at the grasp's patch
+      read as its object's category (the batch's `category`, from the scene stream).
     Each is added to the loss with its weight. With `angle_smoothing` > 0 (a width in angle bins) the
     gradient is that of circular smooth labels on the angle tokens (`loss.smoothed_angle_sum`;
     angle_ids: each bin's token id), while `loss` stays the plain cross-entropy, comparable with runs
@@ -199,6 +208,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             sums["phrase_patch_sum"] = phrase_patch_sum(features, model.text_model.model.embed_tokens.embedding[...],
                                                         batch["tokens"], attention_mask(batch), batch["image_mask"],
                                                         batch["loss_mask"], batch["grasp"], side)
+        if "tower_category" in weights:
+            sums["tower_category_sum"] = tower_category_sum(features, batch[CATEGORY_KEY], batch["grasp"], side,
+                                                            batch["loss_mask"])
         if "answer_pointing" in weights:
             sums["answer_pointing_sum"] = answer_pointing_sum(hidden, batch["image_mask"], image_embeds.shape[1],
                                                                batch["grasp"], side, batch["loss_mask"])
@@ -234,7 +246,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
 
     def train_step(state: TrainState, batch):
         with jax.sharding.use_abstract_mesh(mesh.abstract_mesh):
-            parts = split_microbatches({key: batch[key] for key in TRAIN_KEYS}, microbatches)
+            parts = split_microbatches({key: batch[key] for key in train_keys(auxiliary)}, microbatches)
             grad_sum, sums = accumulate(state.params, state.step, parts)
             count = jnp.maximum(sums["tokens"], 1).astype(jnp.float32)
             grads = jax.tree.map(lambda g: g / count, grad_sum)

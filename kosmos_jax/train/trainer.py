@@ -42,7 +42,7 @@ from kosmos_jax.train.mesh import batch_sharding
 from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state
-from kosmos_jax.train.step import BATCH_KEYS, TRAIN_KEYS, make_eval_step, make_train_step
+from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step, train_keys
 from kosmos_jax.train.task import Task, check_batch_layout
 from kosmos_jax.workdir.checkpoints import Checkpoints
 from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE
@@ -173,6 +173,13 @@ def stream_settings(data_config) -> dict | None:
     return settings
 
 
+def check_category_source(auxiliary: AuxiliaryLosses, stream: dict | None) -> None:
+    """The tower-category loss reads each example's object category, which only the scene stream attaches."""
+    if auxiliary.tower_category_loss and not stream:
+        raise ValueError("config.train.tower_category_loss reads each example's object category, which only the scene "
+                         "stream attaches (from the scenes' metadata): give config.data.stream.photos > 0, or leave it 0")
+
+
 def scene_batches(config, stream: dict, tokenizer, process_index: int = 0,
                   process_count: int = 1) -> scene_stream.SceneStream:
     """This process's training batches from scenes made on the fly (`stream` as `stream_settings` gives it):
@@ -204,8 +211,11 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
         batches = batches_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
                                          jax.process_index(), jax.process_count())
         describe = lambda host: batches_lib.describe_examples(splits["train"], host["example_index"])
+    auxiliary = AuxiliaryLosses.from_config(config.train)
+    check_category_source(auxiliary, stream)
+    step_keys = train_keys(auxiliary)
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
-                                 seed=config.train.seed, auxiliary=AuxiliaryLosses.from_config(config.train),
+                                 seed=config.train.seed, auxiliary=auxiliary,
                                  angle_ids=value_embeddings.angle_token_ids(tokenizer.piece_texts()))
     eval_step = make_eval_step(model_cfg, mesh)
     sharding = batch_sharding(mesh)
@@ -248,7 +258,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
         init_state=lambda: init_train_state(initial_params(config, model_cfg, tokenizer, mesh, description), tx, mesh),
         abstract_state=lambda: abstract_train_state(model_cfg, tx, mesh),
         train_step=lambda state, host: train_step(state, distributed.process_batch(
-            {k: host[k] for k in TRAIN_KEYS}, sharding)),
+            {k: host[k] for k in step_keys}, sharding)),
         step_record=step_record,
         describe=describe,
         test_record=test_record,
