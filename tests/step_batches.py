@@ -1,9 +1,18 @@
 """What the one-step train-step tests share: an AdamW at a constant learning rate and a batch of
 random images whose sequences are <s>, the image slots, </image>, a few instruction words and a
-two-token answer."""
+two-token answer; one step of the tiny model on such a batch."""
 
+import dataclasses
+
+import jax
+import jax.numpy as jnp
 import ml_collections
 import numpy as np
+from flax import nnx
+
+from kosmos_jax.models import config as model_config
+from kosmos_jax.models import kosmos2, mesh
+from kosmos_jax.train import optimizer, state, step
 
 
 def constant_adamw(lr: float) -> ml_collections.ConfigDict:
@@ -25,3 +34,20 @@ def answer_batch(rng: np.random.Generator, count: int, slots: int, words: int, s
                 tokens=rng.integers(3, vocab, (count, length)).astype(np.int32), loss_mask=loss_mask,
                 image_mask=image_mask, length=np.full(count, length, np.int32), grasp=grasp,
                 example_index=np.arange(count))
+
+
+def one_tiny_step(auxiliary, count: int, stored: int, extra: dict | None = None):
+    """(the tiny model without dropout, the batch as jax arrays, the metrics of one train step with
+    `auxiliary`'s losses from that model) for an `answer_batch` of `count` examples (4 words), with
+    the `extra` fields added."""
+    tiny = model_config.TINY.replace(text=dataclasses.replace(model_config.TINY.text, dropout=0.0,
+                                                              attention_dropout=0.0))
+    on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
+    tx, schedule = optimizer.make_optimizer(constant_adamw(1e-3), total_steps=1)
+    batch = {**answer_batch(np.random.default_rng(0), count, tiny.latent_query_num, words=4, stored=stored,
+                            vocab=tiny.text.vocab_size), **(extra or {})}
+    model = nnx.view(kosmos2.build(tiny), deterministic=True)
+    train_step = step.make_train_step(tiny, tx, schedule, on, seed=0, auxiliary=auxiliary)
+    _, params, _ = kosmos2.split_model(model)
+    _, metrics = train_step(state.init_train_state(params, tx, on), batch)
+    return model, {key: jnp.asarray(value) for key, value in batch.items()}, metrics

@@ -1,19 +1,13 @@
 """train.phrase_patch: an instruction's words matched with the tower's feature at its grasp's patch
 among the batch's, against a numpy oracle; who takes part; the train step logs it."""
 
-import dataclasses
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from flax import nnx
 
-from kosmos_jax.models import config as model_config
-from kosmos_jax.models import kosmos2, mesh
-from kosmos_jax.train import loss, optimizer, phrase_patch, state, step
+from kosmos_jax.train import loss, phrase_patch, step
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
-from step_batches import answer_batch, constant_adamw
+from step_batches import one_tiny_step
 
 SIDE, GRID, STORED = 4, 4, 224  # a 4 x 4 patch grid of a 224 px view
 VISION, TEXT, VOCAB, LENGTH = 24, 16, 30, 10
@@ -116,23 +110,10 @@ def test_the_shared_directions_are_orthonormal_and_avoid_the_angle_and_offset_re
 
 @pytest.mark.slow  # one step of the tiny model (about 15 s on 2 cores)
 def test_the_train_step_logs_the_phrase_patch_loss_of_the_model_it_updates():
-    tiny = model_config.TINY.replace(text=dataclasses.replace(model_config.TINY.text, dropout=0.0,
-                                                              attention_dropout=0.0))
-    on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
-    tx, schedule = optimizer.make_optimizer(constant_adamw(1e-3), total_steps=1)
     count = 4
-    batch = answer_batch(np.random.default_rng(0), count, tiny.latent_query_num, words=4, stored=STORED,
-                         vocab=tiny.text.vocab_size)
-    model = nnx.view(kosmos2.build(tiny), deterministic=True)
-    jnp_batch = {key: jnp.asarray(value) for key, value in batch.items()}
-    features = step.image_features(model, jnp_batch)
-    expected = phrase_patch.phrase_patch_sum(features, model.text_model.model.embed_tokens.embedding[...],
-                                             jnp_batch["tokens"], step.attention_mask(jnp_batch),
-                                             jnp_batch["image_mask"], jnp_batch["loss_mask"], jnp_batch["grasp"],
-                                             STORED) / (2 * count)
-    train_step = step.make_train_step(tiny, tx, schedule, on, seed=0,
-                                      auxiliary=AuxiliaryLosses(phrase_patch_loss=1.0))
-    _, params, _ = kosmos2.split_model(model)
-    _, metrics = train_step(state.init_train_state(params, tx, on), batch)
+    model, batch, metrics = one_tiny_step(AuxiliaryLosses(phrase_patch_loss=1.0), count, STORED)
+    expected = phrase_patch.phrase_patch_sum(step.image_features(model, batch), model.text_model.model.embed_tokens.embedding[...],
+                                             batch["tokens"], step.attention_mask(batch), batch["image_mask"],
+                                             batch["loss_mask"], batch["grasp"], STORED) / (2 * count)
     assert float(metrics["phrase_patch"]) == pytest.approx(float(expected), rel=1e-5)
     assert float(expected) > 0

@@ -1,20 +1,14 @@
 """train.tower_category: the tower's feature at the target grasp's patch read as its object's category,
 against a numpy oracle; who takes part; a run without the scene stream refused; the train step logs it."""
 
-import dataclasses
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from flax import nnx
 
-from kosmos_jax.models import config as model_config
-from kosmos_jax.models import kosmos2, mesh
-from kosmos_jax.train import loss, optimizer, state, step, tower_category, trainer
+from kosmos_jax.train import loss, step, tower_category, trainer
 from kosmos_jax.train.auxiliary import AuxiliaryLosses
 from kosmos_jax.train.phrase_patch import TEMPERATURE
-from step_batches import answer_batch, constant_adamw
+from step_batches import one_tiny_step
 
 GRID, STORED, VISION = 4, 224, 24  # a 4 x 4 patch grid of a 224 px view
 CLASSES = len(tower_category.CATEGORY_NAMES)
@@ -101,21 +95,10 @@ def test_a_run_without_the_scene_stream_is_refused():
 
 @pytest.mark.slow  # one step of the tiny model (about 15 s on 2 cores)
 def test_the_train_step_logs_the_tower_category_loss_of_the_model_it_updates():
-    tiny = model_config.TINY.replace(text=dataclasses.replace(model_config.TINY.text, dropout=0.0,
-                                                              attention_dropout=0.0))
-    on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
-    tx, schedule = optimizer.make_optimizer(constant_adamw(1e-3), total_steps=1)
     count = 4
-    batch = answer_batch(np.random.default_rng(0), count, tiny.latent_query_num, words=4, stored=STORED,
-                         vocab=tiny.text.vocab_size)
-    batch[step.CATEGORY_KEY] = np.arange(count, dtype=np.int32)
-    model = nnx.view(kosmos2.build(tiny), deterministic=True)
-    jnp_batch = {key: jnp.asarray(value) for key, value in batch.items()}
-    expected = tower_category.tower_category_sum(step.image_features(model, jnp_batch), jnp_batch["category"],
-                                                 jnp_batch["grasp"], STORED, jnp_batch["loss_mask"]) / (2 * count)
-    train_step = step.make_train_step(tiny, tx, schedule, on, seed=0,
-                                      auxiliary=AuxiliaryLosses(tower_category_loss=1.0))
-    _, params, _ = kosmos2.split_model(model)
-    _, metrics = train_step(state.init_train_state(params, tx, on), batch)
+    model, batch, metrics = one_tiny_step(AuxiliaryLosses(tower_category_loss=1.0), count, STORED,
+                                          {step.CATEGORY_KEY: np.arange(count, dtype=np.int32)})
+    expected = tower_category.tower_category_sum(step.image_features(model, batch), batch[step.CATEGORY_KEY],
+                                                 batch["grasp"], STORED, batch["loss_mask"]) / (2 * count)
     assert float(metrics["tower_category"]) == pytest.approx(float(expected), rel=1e-5)
     assert float(expected) > 0
