@@ -9,6 +9,11 @@ Variants:
   ggcnn2_d        GG-CNN2 on depth views
   grconvnet_rgbd_public, ggcnn2_d_public
                   the same two under the baselines' own protocol, `public`, image-wise (their shuffled split)
+  grconvnet_rgbd_public_gpu, ggcnn2_d_public_gpu
+                  the public code's schedule under `public`, for a lent GPU: Adam at a constant 1e-3 over
+                  50 (GR-ConvNet, c = 32 as published) or 30 (GG-CNN2) epochs of 1,000 batches of 8; a tenth
+                  of the training photos held out as validation, scored every epoch (the learning curve the
+                  schedule is chosen on), every epoch's checkpoint kept; test scored at the end only
   tiny            GR-ConvNet (c = 4) on a few synthetic photos, seconds a step (the tests use it)
 
 config.task = "baseline" (kosmos_jax.train.baseline_task). config.data: source "cornell"
@@ -18,12 +23,17 @@ protocol, fold of `folds`) and the training views (`copies` augmented views a ph
 `recipe`, `seed`) as baselines.inputs.fold_views takes them. data.protocol: "honest", "paper" or
 "public" (GR-ConvNet's and GG-CNN's own evaluation, kosmos_jax.baselines' docstring: one split,
 fold 0 only; scheme "image" shuffles it, "object" does not). Default: Cornell, honest protocol,
-object-wise fold 0. The schedules are sized to finish in about 20 minutes on 2 CPU cores.
+object-wise fold 0. The CPU schedules are sized to finish in about 20 minutes on 2 CPU cores.
+config.data.validation_fraction > 0 holds that share of the training photos out as validation, scored
+every config.train.eval_every steps (test only at the end): the learning curve schedules are chosen on.
 """
 
 import ml_collections
 
-VARIANTS = ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d", "grconvnet_rgbd_public", "ggcnn2_d_public", "tiny")
+VARIANTS = ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d", "grconvnet_rgbd_public", "ggcnn2_d_public",
+            "grconvnet_rgbd_public_gpu", "ggcnn2_d_public_gpu", "tiny")
+PUBLIC_EPOCH = 1_000  # batches of 8 an epoch in both public codes (--batches-per-epoch)
+PUBLIC_EPOCHS = {"grconvnet": 50, "ggcnn2": 30}  # their --epochs defaults
 
 
 def data_config(**changes) -> ml_collections.ConfigDict:
@@ -39,6 +49,7 @@ def data_config(**changes) -> ml_collections.ConfigDict:
     data.copies = 16  # augmented views of each training photo
     data.recipe = "random"
     data.seed = 0
+    data.validation_fraction = 0.0  # > 0: that share of the training photos scored every train.eval_every steps
     data.update(changes)
     return data
 
@@ -102,6 +113,10 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     elif variant in ("ggcnn2_d", "ggcnn2_d_public"):
         config.model = model_config("ggcnn2", "depth")
         config.train = train_config(steps=2400, checkpoint_every=600)
+    elif variant == "grconvnet_rgbd_public_gpu":
+        config.model = model_config("grconvnet", "rgbd", channels=32)
+    elif variant == "ggcnn2_d_public_gpu":
+        config.model = model_config("ggcnn2", "depth")
     else:
         config.model = model_config("grconvnet", "rgbd", channels=4)
         config.data = data_config(source="synthetic", synthetic_photos=8, folds=3, copies=2)
@@ -109,4 +124,10 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         config.train = train_config(steps=6, batch_size=4, log_every=1, checkpoint_every=2)
     if variant.endswith("_public"):
         config.data = data_config(scheme="image", protocol="public")
+    if variant.endswith("_public_gpu"):
+        steps = PUBLIC_EPOCHS[config.model.network] * PUBLIC_EPOCH
+        config.data = data_config(scheme="image", protocol="public", validation_fraction=0.1)
+        config.optimizer = optimizer_config(end_lr=1e-3, warmup_steps=0)  # torch's Adam() default: constant 1e-3
+        config.train = train_config(steps=steps, eval_every=PUBLIC_EPOCH, checkpoint_every=PUBLIC_EPOCH,
+                                    keep_checkpoints=steps // PUBLIC_EPOCH, log_every=100)
     return config

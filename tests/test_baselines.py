@@ -286,6 +286,31 @@ def test_fold_views_use_the_folds_and_leave_out_photos_without_depth(synthetic_p
     assert list(zip(paper.test.photo_id, paper.test.copy.tolist())) == [tuple(s) for s in samples.test]
 
 
+@pytest.mark.parametrize("scheme", ["image", "object"])
+def test_a_validation_split_holds_out_training_photos_made_as_test_views(synthetic_photos, scheme):
+    photos = list(synthetic_photos)
+    whole = inputs.fold_views(photos, "rgb", fold=0, scheme=scheme, k=3, copies=1, seed=0, batch_size=4)
+    held = inputs.fold_views(photos, "rgb", fold=0, scheme=scheme, k=3, copies=1, seed=0, batch_size=4,
+                             validation_fraction=0.25)
+    assert whole.validation is None
+    object_ids = [p.object_id for p in photos] if scheme == "object" else None
+    train_ids, _ = splits.split([p.id for p in photos], 0, scheme, object_ids=object_ids, k=3, seed=0)
+    expected = splits.validation_split(train_ids, 0.25, scheme, seed=0, object_ids=(
+        [{p.id: p.object_id for p in photos}[i] for i in train_ids] if object_ids else None))
+    assert expected.validation and set(held.validation.photo_id) == set(expected.validation)
+    assert set(held.train.photo_id) == set(expected.train) == set(whole.train.photo_id) - set(expected.validation)
+    np.testing.assert_array_equal(held.test.images, whole.test.images)  # test untouched
+    assert held.validation.copy.tolist() == [0] * len(held.validation.photo_id)  # one view a photo
+    index = {p.id: i for i, p in enumerate(photos)}
+    as_test = inputs.make_views([p for p in photos if p.id in expected.validation], "rgb", kosmos_views.HONEST_TEST_CROP,
+                                seed=1, photo_index=index, crop_only=True, batch_size=4)
+    np.testing.assert_array_equal(held.validation.images, as_test.images)
+    with pytest.raises(ValueError, match="the paper protocol folds augmented copies"):
+        inputs.fold_views(photos, "rgb", fold=0, protocol="paper", k=3, copies=1, batch_size=4, validation_fraction=0.25)
+    with pytest.raises(ValueError, match=r"expected a number in \[0, 1\)"):
+        inputs.fold_views(photos, "rgb", fold=0, k=3, copies=1, batch_size=4, validation_fraction=1.0)
+
+
 def test_batches_are_a_function_of_seed_and_step():
     rows = [inputs.batch_rows(10, 3, seed=7, step=s) for s in range(6)]
     assert all(len(r) == 3 for r in rows)

@@ -561,6 +561,21 @@ def test_a_trainer_filling_in_its_config_leaves_the_record_resumable(tmp_path):
     assert len(carried.bring_in(config, tmp_path / "kept", tmp_path / "new")) == 4
 
 
+COMMITTED_RECORDS = sorted(path for path in (REPO / "results").glob("*/folds/*/*/fold.json")
+                           if "recipe" in json.loads(path.read_text()))
+
+
+@pytest.mark.parametrize("path", COMMITTED_RECORDS, ids=lambda p: str(p.relative_to(REPO / "results")))
+def test_committed_fold_records_match_the_configs_they_name(path, monkeypatch):
+    """Every committed fold record that keeps its recipe resolves to it today, so --records_from carries it in:
+    a config field added without its ADDED_AT entry, or a changed default, shows here and not on a user's resume."""
+    monkeypatch.chdir(REPO)
+    record = json.loads(path.read_text())
+    experiment_config = spec.load_config(record["command"].split("--config=")[1].split()[0])
+    run = spec.Run(record["arm"], record["protocol"], record["scheme"], record["fold"])
+    spec.check_recipe(record, spec.fold_config(spec.arm_config(experiment_config, run.arm), run, record["k"]), path)
+
+
 # -- the command and the launcher ------------------------------------------------------------------
 
 

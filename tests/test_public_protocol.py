@@ -17,6 +17,7 @@ from skimage.feature import peak_local_max
 from skimage.filters import gaussian
 
 from kosmos_jax import geometry
+from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.baselines import inputs
 from kosmos_jax.baselines.layers import GraspMaps
 from kosmos_jax.baselines.predict import predict_grasps
@@ -252,3 +253,20 @@ def test_the_public_config_variants_train_on_the_shuffled_split():
         config = spec.load_config(f"configs/baselines.py:{variant}")
         assert (config.data.protocol, config.data.scheme, config.data.fold) == ("public", "image", 0)
         assert config.model.network == network and config.data.source == "cornell"
+
+
+@pytest.mark.parametrize("variant, network, epochs", [("grconvnet_rgbd_public_gpu", "grconvnet", 50),
+                                                      ("ggcnn2_d_public_gpu", "ggcnn2", 30)])
+def test_the_gpu_variants_train_the_public_schedule_and_choose_on_validation(variant, network, epochs):
+    """The public codes' schedule (Adam at torch's constant 1e-3, epochs of 1,000 batches of 8), with a
+    validation split scored every epoch and every epoch's checkpoint kept, so a step can be chosen on it."""
+    config = spec.load_config(f"configs/baselines.py:{variant}")
+    assert (config.data.protocol, config.data.scheme, config.model.network) == ("public", "image", network)
+    assert (config.train.steps, config.train.batch_size) == (epochs * 1_000, 8)
+    _, schedule = make_optimizer(config.optimizer, config.train.steps)
+    assert {float(schedule(step)) for step in (0, 1, config.train.steps // 2, config.train.steps - 1)} == {float(np.float32(1e-3))}
+    assert config.optimizer.weight_decay == 0.0 and config.data.validation_fraction == 0.1
+    assert config.train.eval_every == config.train.checkpoint_every == 1_000
+    assert config.train.keep_checkpoints == epochs
+    if network == "grconvnet":
+        assert config.model.channels == 32  # the public code's --channel-size

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import pathlib
 import subprocess
@@ -66,6 +67,17 @@ def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
     with Checkpoints(resumed) as checkpoints:
         assert 2 in checkpoints.all_steps() and checkpoints.latest_step() == STEPS
 
+
+
+@pytest.mark.slow  # one tiny run of 4 steps
+def test_a_validation_split_gives_the_learning_curve_and_test_only_at_the_end(tmp_path):
+    run = tmp_path / "run"
+    train(run, tmp_path / "datasets", f"--config.train.steps={STEPS}", "--config.train.eval_every=2",
+          "--config.data.validation_fraction=0.25")
+    scored = [(r["step"], r["split"]) for r in read_metrics(run) if "split" in r]
+    assert scored == [(2, "validation"), (STEPS, "validation"), (STEPS, "test")]
+    description = json.loads((run / "run.json").read_text())
+    assert description["data_identity"]["validation_fraction"] == 0.25 and description["views"]["validation"] > 0
 
 
 @pytest.mark.slow  # 36 s (make test's --durations, 2026-11-28, 2 cores)

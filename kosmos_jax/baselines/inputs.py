@@ -176,20 +176,28 @@ class FoldViews:
     missing_depth: list[str]  # photos of the fold left out for want of a depth map
     protocol: str
     scheme: str
+    validation: ViewArrays | None = None  # training photos held out (validation_fraction > 0), made as test's
 
 
 def fold_views(photos: Sequence[Photo], mode: str, fold: int, scheme: str = "image", protocol: str = "honest",
                k: int = 5, fold_seed: int | None = None, copies: int = 16, recipe: str = "random", seed: int = 0,
-               train_crop: str = "gt_centroid", test_crop: str = "image_centre", batch_size: int = 8) -> FoldViews:
+               train_crop: str = "gt_centroid", test_crop: str = "image_centre", batch_size: int = 8,
+               validation_fraction: float = 0.0) -> FoldViews:
     """Train and test views of fold `fold`, as KOSMOS-E's build makes them for the same settings.
 
     honest: `copies` augmented views of each training photo (key seed) and one un-rotated `test_crop`
       crop of each test photo (seed + 1). paper: `copies` augmented copies of every photo, all with
       `train_crop`, and the public code's folds over those copies. public: the GR-ConvNet / GG-CNN
       split (fold 0 only, splits.public_split), training views as honest's, PUBLIC_TEST_CROP test views.
+    validation_fraction > 0 (honest and public): that share of the training photos (object-wise: whole
+      objects) held out as the build holds them out (`splits.validation_split`, the fold seed), their
+      views made as the test views are; schedules are chosen on them, never on test.
     """
     if protocol not in splits.PROTOCOLS:
         raise ValueError(f"protocol {protocol!r} must be one of {', '.join(splits.PROTOCOLS)}")
+    if splits.check_validation_fraction(validation_fraction) and protocol == "paper":
+        raise ValueError(f"validation_fraction={validation_fraction}: the paper protocol folds augmented copies of "
+                         "every photo, so no photo is left to hold out; use the honest or public protocol")
     photos = list(photos)
     index = {p.id: i for i, p in enumerate(photos)}
     ids = [p.id for p in photos]
@@ -200,7 +208,12 @@ def fold_views(photos: Sequence[Photo], mode: str, fold: int, scheme: str = "ima
     missing = sorted(p.id for p in photos if needs_depth(mode) and p.depth is None)
     usable = {p.id: p for p in photos if p.id not in missing}
     if protocol in ("honest", splits.PUBLIC):
-        train_photos = [usable[i] for i in chosen.train if i in usable]
+        object_of = dict(zip(ids, object_ids or ids))
+        default_seed = 0 if protocol == "honest" else splits.PUBLIC_SEED
+        train_ids, validation_ids = splits.validation_split(
+            chosen.train, validation_fraction, scheme, seed=default_seed if fold_seed is None else fold_seed,
+            object_ids=[object_of[i] for i in chosen.train] if object_ids else None)
+        train_photos = [usable[i] for i in train_ids if i in usable]
         test_photos = [usable[i] for i in chosen.test if i in usable]
         train = make_views(train_photos, mode, augment_config(copies, recipe, train_crop), seed, index,
                            batch_size=batch_size)
@@ -211,11 +224,14 @@ def fold_views(photos: Sequence[Photo], mode: str, fold: int, scheme: str = "ima
         else:
             test_config = dataclasses.replace(HONEST_TEST_CROP, centre_policy=test_crop)
         test = make_views(test_photos, mode, test_config, seed + 1, index, crop_only=True, batch_size=batch_size)
-    else:
-        every = make_views(list(usable.values()), mode, augment_config(copies, recipe, train_crop), seed, index,
-                           batch_size=batch_size)
-        train, test = every.select(chosen.train), every.select(chosen.test)
-    return FoldViews(train, test, missing, protocol, scheme)
+        validation = None
+        if validation_ids:  # the test crop and seed, as the build makes validation views
+            validation = make_views([usable[i] for i in validation_ids if i in usable], mode, test_config, seed + 1,
+                                    index, crop_only=True, batch_size=batch_size)
+        return FoldViews(train, test, missing, protocol, scheme, validation)
+    every = make_views(list(usable.values()), mode, augment_config(copies, recipe, train_crop), seed, index,
+                       batch_size=batch_size)
+    return FoldViews(every.select(chosen.train), every.select(chosen.test), missing, protocol, scheme)
 
 
 def batch_rows(count: int, batch_size: int, seed: int, step: int) -> np.ndarray:

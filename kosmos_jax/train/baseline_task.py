@@ -11,7 +11,8 @@ microbatch's loss sums and gradients (divided once by the global image count), e
 BatchNorm update starting from the previous one's, so the state keeps the last; the test record
 scores `predict` (one grasp a view) with the rectangle metric under the run's protocol (under
 `public`, the public code's detection, which may find no grasp, and its metric: baselines package
-docstring).
+docstring). With config.data.validation_fraction > 0 the periodic records (train.eval_every) score
+training photos held out as validation, and test only at the last step.
 """
 
 from __future__ import annotations
@@ -60,15 +61,20 @@ def family_config(model) -> BaselineConfig:
 
 
 def data_identity(data) -> dict:
-    return {"source": str(batches_lib.source_folder(data)), **{name: data[name] for name in (
+    """What the fold's views are made from; validation_fraction only when set, so runs made before it resume."""
+    identity = {"source": str(batches_lib.source_folder(data)), **{name: data[name] for name in (
         "scheme", "protocol", "fold", "folds", "copies", "seed", "recipe")}}
+    if data.get("validation_fraction"):
+        identity["validation_fraction"] = float(data.validation_fraction)
+    return identity
 
 
 def load_views(data, mode: str) -> inputs.FoldViews:
     """The fold's train and test views of the photos config.data.source names (synthetic ones written first)."""
     photos = cornell.load_photos(batches_lib.source_folder(data))
     return inputs.fold_views(photos, mode, fold=data.fold, scheme=data.scheme, protocol=data.protocol, k=data.folds,
-                             copies=data.copies, recipe=data.recipe, seed=data.seed)
+                             copies=data.copies, recipe=data.recipe, seed=data.seed,
+                             validation_fraction=data.get("validation_fraction", 0.0))
 
 
 def _replicated_like(tree, mesh):
@@ -169,7 +175,8 @@ def baseline_task(config, mesh, tx, schedule):
     batch_size = config.train.batch_size
     description = {"config": config.to_dict(), "data_identity": data_identity(config.data),
                    "model": dataclasses.asdict(family.config), "missing_depth": views.missing_depth,
-                   "views": {"train": len(views.train), "test": len(views.test)},
+                   "views": {"train": len(views.train), "test": len(views.test),
+                             **({"validation": len(views.validation)} if views.validation else {})},
                    "rng": {"seed": config.train.seed, "batches": "inputs.batch_rows(seed, step)"}}
 
     def fresh_state():
@@ -184,11 +191,21 @@ def baseline_task(config, mesh, tx, schedule):
                 "step_s": step_s, "examples_per_s": batch_size / step_s,
                 "data_wait_fraction": min(1.0, waited / step_s)}
 
-    def test_record(step, state, with_grasps, log):
-        record = {"step": step, "split": "test", **test_scores(family, state, views.test, batch_size,
-                                                                config.data.protocol)}
-        log.message(f"grasp accuracy (test) step {step}: {record['grasp_accuracy']:.2f}%")
+    def split_record(name, step, state, log) -> dict:
+        record = {"step": step, "split": name, **test_scores(family, state, getattr(views, name), batch_size,
+                                                              config.data.protocol)}
+        log.message(f"grasp accuracy ({name}) step {step}: {record['grasp_accuracy']:.2f}%")
         return record
+
+    def test_record(step, state, with_grasps, log):
+        """The validation split's record while training (the learning curve schedules are chosen on), when
+        the fold has one; at the last step the validation record is logged and test's returned."""
+        if views.validation is None:
+            return split_record("test", step, state, log)
+        if step >= config.train.steps:
+            log.write(split_record("validation", step, state, log))
+            return split_record("test", step, state, log)
+        return split_record("validation", step, state, log)
 
     return Task(
         description=description, batches=StepBatches(views.train, batch_size, config.train.seed),
