@@ -51,12 +51,12 @@ from kosmos_jax.train.state import TrainState, abstract_train_state
 BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp")
 TRAIN_KEYS = BATCH_KEYS + ("example_index",)  # the train step's: the examples' ids key their dropout masks
 CATEGORY_KEY = "category"  # the target object's category, made only by the scene stream (train.tower_category)
+_DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
 
 
 def train_keys(auxiliary: AuxiliaryLosses) -> tuple[str, ...]:
     """The batch fields the train step with these losses reads."""
     return TRAIN_KEYS + ((CATEGORY_KEY,) if auxiliary.tower_category_loss else ())
-_DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
 
 
 def dropout_key(seed: int, step: jax.Array) -> jax.Array:
