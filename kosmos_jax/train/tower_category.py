@@ -51,7 +51,13 @@ def tower_category_sum(features: jax.Array, category: jax.Array, grasp: jax.Arra
     losses are. features [B, 1 + patches, Dv] (the class token first), category [B] (NO_CATEGORY: none),
     grasp [B, 5] in pixels of an `image_side` view, loss_mask [B, T]."""
     weight = finite_example_tokens(loss_mask, grasp[:, :2]) * (category >= 0)
-    patches = grasp_cell_tokens(features, jnp.nan_to_num(grasp[:, :2]) / image_side).astype(jnp.float32)
-    logits = unit(patches) @ jnp.asarray(category_directions(features.shape[-1])) / TEMPERATURE
-    own = jnp.take_along_axis(jax.nn.log_softmax(logits, axis=-1), jnp.maximum(category, 0)[:, None], axis=-1)[:, 0]
+    own = jnp.take_along_axis(jax.nn.log_softmax(category_logits(features, grasp, image_side), axis=-1),
+                              jnp.maximum(category, 0)[:, None], axis=-1)[:, 0]
     return jnp.sum(jnp.where(weight > 0, -own * weight, 0.0))
+
+
+def category_logits(features: jax.Array, grasp: jax.Array, image_side: int) -> jax.Array:
+    """[B, categories]: the loss's logits, the unit feature at each grasp's patch read along
+    `category_directions` over the temperature (a grasp that is not finite reads the first patch)."""
+    patches = grasp_cell_tokens(features, jnp.nan_to_num(grasp[:, :2]) / image_side).astype(jnp.float32)
+    return unit(patches) @ jnp.asarray(category_directions(features.shape[-1])) / TEMPERATURE
