@@ -10,8 +10,8 @@ Variants:
   grconvnet_rgbd_public, ggcnn2_d_public
                   the same two under the baselines' own protocol, `public`, image-wise (their shuffled split)
   grconvnet_rgbd_public_gpu, ggcnn2_d_public_gpu
-                  the public code's schedule under `public`, for a lent GPU: Adam at a constant 1e-3 over
-                  50 (GR-ConvNet, c = 32 as published) or 30 (GG-CNN2) epochs of 1,000 batches of 8; a tenth
+                  the public codes' schedule under `public`, for a lent GPU: Adam at a constant 1e-3 over
+                  50 epochs of 1,000 batches of 8 (GR-ConvNet at c = 32, as published); a tenth
                   of the training photos held out as validation, scored every epoch (the learning curve the
                   schedule is chosen on), every epoch's checkpoint kept; test scored at the end only
   tiny            GR-ConvNet (c = 4) on a few synthetic photos, seconds a step (the tests use it)
@@ -33,7 +33,7 @@ import ml_collections
 VARIANTS = ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d", "grconvnet_rgbd_public", "ggcnn2_d_public",
             "grconvnet_rgbd_public_gpu", "ggcnn2_d_public_gpu", "tiny")
 PUBLIC_EPOCH = 1_000  # batches of 8 an epoch in both public codes (--batches-per-epoch)
-PUBLIC_EPOCHS = {"grconvnet": 50, "ggcnn2": 30}  # their --epochs defaults
+PUBLIC_EPOCHS = 50  # both public codes' --epochs default
 
 
 def data_config(**changes) -> ml_collections.ConfigDict:
@@ -125,7 +125,7 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     if variant.endswith("_public"):
         config.data = data_config(scheme="image", protocol="public")
     if variant.endswith("_public_gpu"):
-        steps = PUBLIC_EPOCHS[config.model.network] * PUBLIC_EPOCH
+        steps = PUBLIC_EPOCHS * PUBLIC_EPOCH
         config.data = data_config(scheme="image", protocol="public", validation_fraction=0.1)
         config.optimizer = optimizer_config(end_lr=1e-3, warmup_steps=0)  # torch's Adam() default: constant 1e-3
         config.train = train_config(steps=steps, eval_every=PUBLIC_EPOCH, checkpoint_every=PUBLIC_EPOCH,
