@@ -208,11 +208,10 @@ def fold_views(photos: Sequence[Photo], mode: str, fold: int, scheme: str = "ima
     missing = sorted(p.id for p in photos if needs_depth(mode) and p.depth is None)
     usable = {p.id: p for p in photos if p.id not in missing}
     if protocol in ("honest", splits.PUBLIC):
-        object_of = dict(zip(ids, object_ids or ids))
-        default_seed = 0 if protocol == "honest" else splits.PUBLIC_SEED
+        object_of = dict(zip(ids, object_ids)) if object_ids else None
         train_ids, validation_ids = splits.validation_split(
-            chosen.train, validation_fraction, scheme, seed=default_seed if fold_seed is None else fold_seed,
-            object_ids=[object_of[i] for i in chosen.train] if object_ids else None)
+            chosen.train, validation_fraction, scheme, seed=splits.fold_seed(protocol, fold_seed),
+            object_ids=[object_of[i] for i in chosen.train] if object_of else None)
         train_photos = [usable[i] for i in train_ids if i in usable]
         test_photos = [usable[i] for i in chosen.test if i in usable]
         train = make_views(train_photos, mode, augment_config(copies, recipe, train_crop), seed, index,

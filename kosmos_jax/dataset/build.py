@@ -108,9 +108,7 @@ class BuildConfig:
 
     def folds_seed(self) -> int:
         """The seed of the fold assignment actually used."""
-        if self.fold_seed is not None:
-            return self.fold_seed
-        return 0 if self.protocol == "honest" else splits.PAPER_SEED
+        return splits.fold_seed(self.protocol, self.fold_seed)
 
     def format_config(self) -> FormatConfig:
         return FormatConfig(self.representation, self.angle_code, self.individual, self.loss_on,

@@ -187,6 +187,14 @@ def folds_to_split(items: Sequence, folds: Sequence[int], fold: int, k: int) -> 
     return Split(train, test)
 
 
+def fold_seed(protocol: str, seed: int | None = None) -> int:
+    """The seed `protocol`'s split draws with: `seed`, else the protocol's own (honest 0; paper and public
+    the public code's 123)."""
+    if seed is not None:
+        return int(seed)
+    return {"honest": 0, "paper": PAPER_SEED, PUBLIC: PUBLIC_SEED}[protocol]
+
+
 def split(photo_ids: Sequence[str], fold: int, scheme: str = "image", protocol: str = "honest",
           object_ids: Sequence[Hashable | None] | None = None, k: int = 5, seed: int | None = None,
           copies_per_photo: int = PAPER_COPIES_PER_PHOTO) -> Split:
@@ -202,28 +210,29 @@ def split(photo_ids: Sequence[str], fold: int, scheme: str = "image", protocol: 
     """
     if scheme not in ("image", "object"):
         raise ValueError(f"scheme {scheme!r} must be 'image' or 'object'")
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol {protocol!r} must be one of {', '.join(PROTOCOLS)}")
+    seed = fold_seed(protocol, seed)
     if protocol == "honest":
         if scheme == "image":
-            folds = image_wise_folds(photo_ids, k, 0 if seed is None else seed)
+            folds = image_wise_folds(photo_ids, k, seed)
         else:
             if object_ids is None:
                 raise ValueError("object-wise split needs object_ids (one per photo id)")
-            folds = object_wise_folds(photo_ids, object_ids, k, 0 if seed is None else seed)
+            folds = object_wise_folds(photo_ids, object_ids, k, seed)
         ids = sorted(folds)
         return folds_to_split(ids, [folds[i] for i in ids], fold, k)
     if protocol == "paper":
         samples = paper_samples(photo_ids, copies_per_photo)
         if scheme == "image":
-            folds = paper_image_wise_folds(len(samples), k, PAPER_SEED if seed is None else seed)
+            folds = paper_image_wise_folds(len(samples), k, seed)
         else:
             folds = paper_object_wise_folds(len(samples), k)
         return folds_to_split(samples, folds, fold, k)
-    if protocol == PUBLIC:
-        if fold != 0:
-            raise ValueError(f"fold {fold}: the public protocol has one split (the first "
-                             f"{PUBLIC_TRAIN_FRACTION:.0%} of the photo list trains, the rest tests); only fold 0")
-        return public_split(photo_ids, shuffle=scheme == "image", seed=PUBLIC_SEED if seed is None else seed)
-    raise ValueError(f"protocol {protocol!r} must be one of {', '.join(PROTOCOLS)}")
+    if fold != 0:  # public
+        raise ValueError(f"fold {fold}: the public protocol has one split (the first "
+                         f"{PUBLIC_TRAIN_FRACTION:.0%} of the photo list trains, the rest tests); only fold 0")
+    return public_split(photo_ids, shuffle=scheme == "image", seed=seed)
 
 
 def check_validation_fraction(fraction) -> float:

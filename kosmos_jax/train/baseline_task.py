@@ -34,7 +34,7 @@ from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState
 from kosmos_jax.train.step import _all_finite, dropout_key, split_microbatches
-from kosmos_jax.train.task import Task, check_batch_layout
+from kosmos_jax.train.task import Task, check_batch_layout, watched_record
 
 
 class StepBatches:
@@ -198,14 +198,8 @@ def baseline_task(config, mesh, tx, schedule):
         return record
 
     def test_record(step, state, with_grasps, log):
-        """The validation split's record while training (the learning curve schedules are chosen on), when
-        the fold has one; at the last step the validation record is logged and test's returned."""
-        if views.validation is None:
-            return split_record("test", step, state, log)
-        if step >= config.train.steps:
-            log.write(split_record("validation", step, state, log))
-            return split_record("test", step, state, log)
-        return split_record("validation", step, state, log)
+        return watched_record(lambda name: split_record(name, step, state, log), views.validation is not None,
+                              step, config.train.steps, log)
 
     return Task(
         description=description, batches=StepBatches(views.train, batch_size, config.train.seed),

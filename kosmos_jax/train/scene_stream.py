@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
-import json
 import pathlib
 import sys
 import tempfile
@@ -38,10 +37,9 @@ from kosmos_jax.train.tower_category import category_label
 CHUNK_STRIDE = 10**7  # more examples than any chunk makes
 
 
-def photo_categories(source: pathlib.Path) -> dict[str, int]:
-    """{photo id: its object's category label} from a synthetic source folder's metadata."""
-    photos = json.loads((source / scenes.META_NAME).read_text())["photos"]
-    return {photo_id: category_label(meta["category"]) for photo_id, meta in photos.items()}
+def photo_categories(metadata: dict) -> dict[str, int]:
+    """{photo id: its object's category label} from a synthetic folder's metadata (its parsed synthetic_meta.json)."""
+    return {photo_id: category_label(meta["category"]) for photo_id, meta in metadata["photos"].items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,8 +57,9 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
         source = pathlib.Path(folder) / "scenes"
         scenes.write_dataset(source, photos=photos, seed=scene_seed)
         photo_list, image_files = read_photos(source)
-        words = object_words(word_source(source, None), photo_list, image_files)
-        categories = photo_categories(source)
+        words_from = word_source(source, None)  # the scenes' metadata, read once for the words and the categories
+        words = object_words(words_from, photo_list, image_files)
+        categories = photo_categories(words_from.document)
     index = {p.id: i for i, p in enumerate(photo_list)}
     made, _ = make_views(photo_list, words, augment_config(config.augmentations, config.recipe,
                                                            config.train_crop or "gt_centroid"),

@@ -24,8 +24,7 @@ class Task:
     train_step: Callable  # (state, host batch) -> (state, metrics)
     step_record: Callable  # (step, metrics, host batch, step_s, waited) -> metrics.jsonl line
     describe: Callable  # host batch -> its examples, for the non-finite error
-    # (step, state, with_grasps, log) -> an evaluation's line: the test split's, or (KOSMOS-E) the validation
-    # split's when the dataset has one, the last evaluation logging validation's itself and returning test's
+    # (step, state, with_grasps, log) -> an evaluation's line: `watched_record`'s
     test_record: Callable
     write_files: Callable  # workdir -> None: files beside run.json (process 0)
 
@@ -36,3 +35,15 @@ def check_batch_layout(config, mesh) -> None:
     if config.train.batch_size % config.train.microbatches or rows % data_devices:
         raise ValueError(f"train.batch_size={config.train.batch_size} in {config.train.microbatches} microbatches "
                          f"does not split over the {data_devices} data-parallel devices of mesh {dict(mesh.shape)}")
+
+
+def watched_record(split_record: Callable[[str], dict], has_validation: bool, step: int, last_step: int, log) -> dict:
+    """An evaluation's line: the validation split's when there is one, else test's; at `last_step` with a
+    validation split, validation's is logged here and test's returned (test is scored once, at the end).
+    `split_record(name)` scores split `name`."""
+    if not has_validation:
+        return split_record("test")
+    if step >= last_step:
+        log.write(split_record("validation"))
+        return split_record("test")
+    return split_record("validation")

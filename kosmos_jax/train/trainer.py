@@ -43,7 +43,7 @@ from kosmos_jax.train.metrics_log import AUXILIARY_LOSSES, MetricsLog
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.state import abstract_train_state, init_train_state
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step, train_keys
-from kosmos_jax.train.task import Task, check_batch_layout
+from kosmos_jax.train.task import Task, check_batch_layout, watched_record
 from kosmos_jax.workdir.checkpoints import Checkpoints
 from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE
 from kosmos_jax.workdir.model import model_config
@@ -246,12 +246,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
         return record
 
     def test_record(step, state, with_grasps: bool, log: MetricsLog) -> dict:
-        """The record of the watched split (validation when the dataset has one, else test); at the
-        last step with a validation split, the validation record is logged here and test's returned."""
-        if watched != "test" and step >= config.train.steps:
-            log.write(split_record(watched, step, state, with_grasps, log))
-            return split_record("test", step, state, with_grasps, log)
-        return split_record(watched, step, state, with_grasps, log)
+        return watched_record(lambda name: split_record(name, step, state, with_grasps, log), watched != "test",
+                              step, config.train.steps, log)
 
     return Task(
         description=description, batches=batches,
