@@ -54,8 +54,9 @@ def data_config(**changes) -> ml_collections.ConfigDict:
     data.synthetic_seed = 0
     # photos > 0: training batches from scenes made on the fly, chunks of that many photos of seeds
     # seed, seed + 1, ... (train/scene_stream.py); the built dataset then gives the tokenizer, validation and test.
-    # kinds: the stream's instruction kinds as data.build.kinds takes them ("non,multi"); "" = the build's
-    data.stream = ml_collections.ConfigDict(dict(photos=0, seed=10_000, kinds=""))
+    # kinds: the stream's instruction kinds as data.build.kinds takes them ("non,multi"); "" = the build's;
+    # examples > 0: keep that many of a chunk's examples, drawn at random (more scenes for the same steps)
+    data.stream = ml_collections.ConfigDict(dict(photos=0, seed=10_000, kinds="", examples=0))
     data.build = ml_collections.ConfigDict(dict(
         protocol="honest", split="image", fold=0, folds=5, annotations=placeholder(str), augmentations=4,
         recipe="random", kinds="non", seed=0, fold_seed=placeholder(int), train_crop=placeholder(str),

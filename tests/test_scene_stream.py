@@ -174,3 +174,31 @@ def test_a_stream_run_killed_with_9_resumes_with_the_losses_of_one_never_stopped
     assert "resuming" in finish(tmp_path / "killed").stderr
     straight, resumed = train_losses(tmp_path / "straight"), train_losses(tmp_path / "killed")
     assert sorted(straight) == list(range(1, steps + 1)) and resumed == straight  # exact floats, every step
+
+
+def test_a_capped_chunk_keeps_that_many_of_the_full_chunks_examples(stream_parts):
+    """Oracle: the uncapped chunk 0; the capped one holds `examples` of its examples (their labels and
+    token rows), the same ones on every remake, and a cap above the count keeps all."""
+    full = stream(stream_parts).chunk(0)
+    by_label = {}
+    for row, label in enumerate(full.labels):
+        by_label.setdefault(label, []).append(full.arrays["tokens"][row])
+    cap = len(full.labels) // 3
+    capped = stream(stream_parts, examples=cap).chunk(0)
+    assert len(capped.labels) == cap
+    for row, label in enumerate(capped.labels):
+        assert any(np.array_equal(capped.arrays["tokens"][row], tokens) for tokens in by_label[label]), label
+    again = stream(stream_parts, examples=cap).chunk(0)
+    assert again.labels == capped.labels
+    np.testing.assert_array_equal(again.arrays["tokens"], capped.arrays["tokens"])
+    assert len(stream(stream_parts, examples=10 * len(full.labels)).chunk(0).labels) == len(full.labels)
+    with pytest.raises(ValueError, match="examples=-1 must be >= 0"):
+        stream(stream_parts, examples=-1)
+
+
+def test_the_stream_records_a_chunk_cap_only_when_set():
+    data = ml_collections.ConfigDict(dict(source="synthetic", synthetic_seed=1000,
+                                          stream=dict(photos=8, seed=1001, kinds="", examples=0)))
+    assert "examples" not in trainer.stream_settings(data)  # the description of older runs
+    data.stream.examples = 96
+    assert trainer.stream_settings(data)["examples"] == 96

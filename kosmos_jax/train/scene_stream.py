@@ -3,7 +3,8 @@
 Chunk k holds `photos` fresh scenes of seed `seed + k`, made in a temporary folder and deleted
 once read, then the dataset build's own stages: augmented views, samples of every kind the build
 asks for (mosaics drawn within the chunk), text, tokens with the run's fixed tokenizer. The
-chunk's examples are shuffled with (seed, k) and cut into global batches; process p takes rows
+chunk's examples (at most `examples` of them, drawn at random with (seed, k), when it is set: more
+scenes a chunk with fewer examples of each) are shuffled with (seed, k) and cut into global batches; process p takes rows
 p, p + P, ... of each. Nothing is stored: the position is (chunk, batch), and `set_state`
 remakes that chunk, so a resumed run sees the same batches as one never stopped. The next chunk
 is made in a background thread while the current one is read.
@@ -48,8 +49,10 @@ class Chunk:
     labels: list  # "photo ids (kind)" of each example, same order
 
 
-def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scene_seed: int, number: int) -> Chunk:
-    """Chunk `number` of the stream: `photos` scenes of `scene_seed`, as training examples of `build_config`."""
+def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scene_seed: int, number: int,
+               examples: int = 0) -> Chunk:
+    """Chunk `number` of the stream: `photos` scenes of `scene_seed`, as training examples of `build_config`;
+    `examples` > 0 keeps that many of them (or all, if fewer fit max_length), drawn at random."""
     config = dataclasses.replace(build_config, seed=scene_seed)
     format_config = config.format_config()
     single, multi = sample_stage.parse_kinds(config.kinds or ("all",))
@@ -65,8 +68,14 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
                                                            config.train_crop or "gt_centroid"),
                          scene_seed, index, False, config.batch_size)
     views = [made[key] for key in sorted(made)]
+    made_examples = list(build_lib._examples(config, views, single, multi, "train"))
+    if examples:  # tokens made in a random order until `examples` fit: the others cost nothing
+        made_examples = [made_examples[i] for i in np.random.default_rng([scene_seed, number, examples])
+                         .permutation(len(made_examples))]
     rows, labels, too_long = [], [], 0
-    for sample, example in build_lib._examples(config, views, single, multi, "train"):
+    for sample, example in made_examples:
+        if examples and len(rows) == examples:
+            break
         try:
             encoded = layout.encode_example(example, tokenizer, format_config)
         except layout.SequenceTooLongError:
@@ -89,10 +98,12 @@ class SceneStream:
     """Endless host batches of this process's rows; get_state() / set_state() for checkpoints."""
 
     def __init__(self, build_config: build_lib.BuildConfig, tokenizer, *, photos: int, seed: int,
-                 global_batch: int, process_index: int = 0, process_count: int = 1):
+                 global_batch: int, process_index: int = 0, process_count: int = 1, examples: int = 0):
         if global_batch % process_count:
             raise ValueError(f"train.batch_size={global_batch} is not divisible by the {process_count} processes")
-        self._make = lambda number: make_chunk(build_config, tokenizer, photos, seed + number, number)
+        if examples < 0:
+            raise ValueError(f"config.data.stream.examples={examples} must be >= 0 (0: every example a chunk makes)")
+        self._make = lambda number: make_chunk(build_config, tokenizer, photos, seed + number, number, examples)
         self.global_batch, self.process_index, self.process_count = global_batch, process_index, process_count
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="scene-stream")
         self._chunk_number, self._batch = 0, 0

@@ -155,9 +155,10 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
 
 
 def stream_settings(data_config) -> dict | None:
-    """{"photos", "seed"[, "kinds"]} of config.data.stream when training reads scenes made on the fly,
-    else None. "kinds" (resolved, e.g. ["non", "multi-name", ...]) is there only when config.data.stream.kinds
-    gives the stream other instruction kinds than the build's. The stream's seeds must all lie above the
+    """{"photos", "seed"[, "kinds"][, "examples"]} of config.data.stream when training reads scenes made on
+    the fly, else None. "kinds" (resolved, e.g. ["non", "multi-name", ...]) is there only when
+    config.data.stream.kinds gives the stream other instruction kinds than the build's, "examples" only when
+    config.data.stream.examples caps a chunk's examples. The stream's seeds must all lie above the
     built dataset's scenes' seed, so that no test photo is ever a training one."""
     stream = data_config.get("stream")
     if not stream or not stream.get("photos"):
@@ -170,6 +171,8 @@ def stream_settings(data_config) -> dict | None:
     if stream.get("kinds"):  # left out at the default, as runs made before the option wrote it
         single, multi = sample_stage.parse_kinds(batches_lib.kind_names(stream.kinds))
         settings["kinds"] = list(single) + [sample_stage.MULTI_PREFIX + k for k in multi]
+    if stream.get("examples"):  # left out at the default, as for kinds
+        settings["examples"] = int(stream.examples)
     return settings
 
 
@@ -189,7 +192,7 @@ def scene_batches(config, stream: dict, tokenizer, process_index: int = 0,
         build = dataclasses.replace(build, kinds=tuple(stream["kinds"]))
     return scene_stream.SceneStream(build, tokenizer, photos=stream["photos"], seed=stream["seed"],
                                     global_batch=config.train.batch_size, process_index=process_index,
-                                    process_count=process_count)
+                                    process_count=process_count, examples=stream.get("examples", 0))
 
 
 def kosmos_task(config, mesh, tx, schedule) -> Task:
