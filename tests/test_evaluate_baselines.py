@@ -114,6 +114,8 @@ def test_what_a_baseline_run_cannot_do_is_an_error_that_says_so(workdir, tmp_pat
     assert code == 1 and "no checkpoint of step 3" in err and "[1, 2]" in err
     code, _, err = run_cli(f"--workdir={workdir}", "--split=valid")
     assert code == 1 and "unknown split 'valid'" in err
+    code, _, err = run_cli(f"--workdir={workdir}", "--split=validation")
+    assert code == 1 and "held out no validation split" in err
     code, _, err = run_cli(f"--workdir={workdir}", f"--cornell={tmp_path}", "--kinds=colour")
     assert code == 1 and "takes no instruction" in err
     code, _, err = run_cli(f"--workdir={workdir}", f"--cornell={tmp_path / 'nothing'}")

@@ -78,6 +78,14 @@ def test_a_validation_split_gives_the_learning_curve_and_test_only_at_the_end(tm
     assert scored == [(2, "validation"), (STEPS, "validation"), (STEPS, "test")]
     description = json.loads((run / "run.json").read_text())
     assert description["data_identity"]["validation_fraction"] == 0.25 and description["views"]["validation"] > 0
+    # the evaluator scores any kept checkpoint's validation views as the trainer did (a step chosen after the run)
+    from kosmos_jax.evaluate.run_scores import evaluate
+
+    for step in (2, STEPS):
+        results, _, _ = evaluate(run, step=step, split="validation")
+        record = next(r for r in read_metrics(run) if r.get("split") == "validation" and r["step"] == step)
+        assert results["instructions"] == record["views"] == description["views"]["validation"]
+        assert results["accuracy"] == pytest.approx(record["grasp_accuracy"], abs=1e-9)
 
 
 @pytest.mark.slow  # 36 s (make test's --durations, 2026-11-28, 2 cores)

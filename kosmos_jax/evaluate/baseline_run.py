@@ -36,7 +36,7 @@ from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.workdir.checkpoints import Checkpoints, chosen_step
 from kosmos_jax.workdir.files import RunError, read_description, run_task
 
-SPLITS = ("test", "train")
+SPLITS = ("test", "train", "validation")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,9 +80,12 @@ class BaselineRun:
         return recorded.resolve() if recorded.is_dir() else batches_lib.source_folder(self.config.data)
 
     def split(self, name: str) -> ViewArrays:
-        """The views of split `name` ("test" or "train") of the run's fold."""
+        """The views of split `name` ("test", "train" or, in a run that held one out, "validation") of the run's fold."""
         if name not in SPLITS:
             raise ValueError(f"unknown split {name!r}; a baseline's fold has {sorted(SPLITS)}")
+        if name not in self.description["views"]:
+            raise RunError(f"{self.workdir} held out no validation split (config.data.validation_fraction was 0): "
+                           "score --split=test or --split=train")
         data = ml_collections.ConfigDict(self.config.data.to_dict())
         data.source = str(self.source_folder())
         views = getattr(load_views(data, self.family.config.mode), name)
