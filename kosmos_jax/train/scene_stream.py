@@ -68,8 +68,9 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
                                                            config.train_crop or "gt_centroid"),
                          scene_seed, index, False, config.batch_size)
     views = [made[key] for key in sorted(made)]
-    made_examples = list(build_lib._examples(config, views, single, multi, "train"))
+    made_examples = build_lib._examples(config, views, single, multi, "train")
     if examples:  # tokens made in a random order until `examples` fit: the others cost nothing
+        made_examples = list(made_examples)
         made_examples = [made_examples[i] for i in np.random.default_rng([scene_seed, number, examples])
                          .permutation(len(made_examples))]
     rows, labels, too_long = [], [], 0

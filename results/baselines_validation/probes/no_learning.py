@@ -7,6 +7,7 @@ what its test accuracy sits between. Run from the repository root:
 import sys
 
 from kosmos_jax.evaluate.baseline_run import open_baseline_run
+from kosmos_jax.experiments.no_learning import predict
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.no_learning import PREDICTORS
 from kosmos_jax.scoring.view_scores import view_instructions
@@ -15,10 +16,7 @@ for workdir in sys.argv[1:]:
     run = open_baseline_run(workdir)
     views = run.split("test")
     instructions = view_instructions(views)
-    grasps, mask = tally.padded_answers(instructions)
-    size = views.images.shape[1]
-    for name, predictor in PREDICTORS.items():
-        out = predictor(grasps, mask, size) if name == "image_centre" else predictor(grasps, mask)
-        hits = tally.successes(instructions, out, run.protocol)
+    for name in PREDICTORS:
+        hits = tally.successes(instructions, predict(name, instructions, views.images.shape[1]), run.protocol)
         print(f"{workdir}: fold {run.config.data.fold} ({run.config.data.scheme}-wise, {run.protocol}), {name}: "
               f"{tally.percent(hits):.2f}% ({int(hits.sum())} of {len(instructions)} test views)")
