@@ -16,6 +16,14 @@ cpu_demo: the same four mixes with the demo recipe (configs/kosmos_e.py:demo: ph
 value tokens, the pointing connector; 800 steps), 4 augmentations a training photo as cpu, max_length 128
 (value tokens make answers shorter than digits); honest protocol, image-wise fold 0 (results/table2_demo:
 757 to 885 s an arm on 2 cores, 2026-11-25).
+cpu_pretrained: cpu_demo's mixes, data and fold, KOSMOS-E fine-tuned for 800 steps at make demo's fine-tune rate
+(3e-4) from a grounding pretraining run on every instruction kind, single photos and mosaics (the shipped
+start, results/pretrain/demo_photos1200, knows NON's words only). Make that run first (19 minutes on 2
+quiet cores, results/pretrain/README.md, "More scenes a chunk, fewer examples of each"):
+
+    python -m kosmos_jax.train --config=configs/pretrain.py:demo_stream_instruct --workdir=runs/pretrain/stream_wide1500 \
+        --config.train.steps=1500 --config.data.stream.photos=256 --config.data.stream.examples=4096
+
 paper: configs/kosmos_e.py:paper (Cornell with KOSMOS-E's annotations, KOSMOS-2 initialisation:
 --config.init_from), both protocols, image-wise, every fold.
 
@@ -28,7 +36,9 @@ from kosmos_jax.experiments.spec import arm, experiment
 
 MIXES = ("non", "single", "multi", "all")
 CPU_STEPS = 200
-VARIANTS = ("cpu", "cpu_demo", "paper")
+VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "paper")
+STREAM_START = "runs/pretrain/stream_wide1500"  # made by the command of the docstring
+FINETUNE_PEAK_LR = 3e-4  # configs/kosmos_e.py:demo_photos_finetune's, chosen on validation for the shipped start
 
 
 def get_config(arg: str | None = None):
@@ -43,6 +53,13 @@ def get_config(arg: str | None = None):
     if variant == "cpu_demo":
         arms = {mix: arm("configs/kosmos_e.py:demo", {"data.build.kinds": mix, "data.build.augmentations": 4,
                                                       "data.build.max_length": 128}) for mix in MIXES}
+        return experiment("table2", arms, schemes="image", protocols="honest", folds="0")
+    if variant == "cpu_pretrained":
+        # the start's model (its connector reads the instruction) and its tokenizer, which knows every kind's words
+        arms = {mix: arm("configs/kosmos_e.py:demo_finetune", {
+            "data.build.kinds": mix, "data.build.augmentations": 4, "data.build.max_length": 128,
+            "model.connector_instruction": True, "optimizer.peak_lr": FINETUNE_PEAK_LR, "init_from": STREAM_START})
+            for mix in MIXES}
         return experiment("table2", arms, schemes="image", protocols="honest", folds="0")
     arms = {mix: arm("configs/kosmos_e.py:paper", {"data.build.kinds": mix}) for mix in MIXES}
     return experiment("table2", arms, schemes="image", protocols="honest,paper")
