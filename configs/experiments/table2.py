@@ -24,12 +24,15 @@ quiet cores, results/pretrain/README.md, "More scenes a chunk, fewer examples of
     python -m kosmos_jax.train --config=configs/pretrain.py:demo_stream_instruct --workdir=runs/pretrain/stream_wide1500 \
         --config.train.steps=1500 --config.data.stream.photos=256 --config.data.stream.examples=4096
 
+Fold 0 of its four arms took 712 to 820 s an arm, 3,037 s in all, on 2 quiet cores (results/table2_pretrained,
+beside cpu_demo rerun with today's recipe, 3,016 s).
 paper: configs/kosmos_e.py:paper (Cornell with KOSMOS-E's annotations, KOSMOS-2 initialisation:
 --config.init_from), both protocols, image-wise, every fold.
 
 The cpu_demo records in results/ were made before configs/kosmos_e.py:demo gained the tower- and
 slot-angle losses (2026-11-26) and before fold records kept their recipe: --records_from cannot
-tell them from today's recipe, so a rerun must not carry them in.
+tell them from today's recipe, so a rerun must not carry them in (today's recipe's records:
+results/table2_pretrained/scratch_folds).
 """
 
 from kosmos_jax.experiments.spec import arm, experiment
