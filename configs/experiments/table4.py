@@ -15,7 +15,8 @@ configs/kosmos_e.py:paper (Cornell, every instruction kind, KOSMOS-2 initialisat
 
 The cpu_demo records in results/ were made before configs/kosmos_e.py:demo gained the tower- and
 slot-angle losses (2026-11-26) and before fold records kept their recipe: --records_from cannot
-tell them from today's recipe, so a rerun must not carry them in.
+tell them from today's recipe, so a rerun must not carry them in (today's recipe's records:
+results/table4_demo/rerun_2026-11-29).
 """
 
 from kosmos_jax.experiments.spec import arm, experiment
