@@ -49,12 +49,10 @@ class Chunk:
     labels: list  # "photo ids (kind)" of each example, same order
 
 
-def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scene_seed: int, number: int,
-               examples: int = 0) -> Chunk:
-    """Chunk `number` of the stream: `photos` scenes of `scene_seed`, as training examples of `build_config`;
-    `examples` > 0 keeps that many of them (or all, if fewer fit max_length), drawn at random."""
+def scene_examples(build_config: build_lib.BuildConfig, photos: int, scene_seed: int):
+    """(the (sample, text example) pairs of `photos` fresh scenes of `scene_seed` as `build_config`'s training
+    split makes them, in its order; {photo id: category label}). The scenes' files are gone on return."""
     config = dataclasses.replace(build_config, seed=scene_seed)
-    format_config = config.format_config()
     single, multi = sample_stage.parse_kinds(config.kinds or ("all",))
     with tempfile.TemporaryDirectory(prefix="kosmos_jax-stream-") as folder:
         source = pathlib.Path(folder) / "scenes"
@@ -68,7 +66,15 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
                                                            config.train_crop or "gt_centroid"),
                          scene_seed, index, False, config.batch_size)
     views = [made[key] for key in sorted(made)]
-    made_examples = build_lib._examples(config, views, single, multi, "train")
+    return build_lib._examples(config, views, single, multi, "train"), categories
+
+
+def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scene_seed: int, number: int,
+               examples: int = 0) -> Chunk:
+    """Chunk `number` of the stream: `photos` scenes of `scene_seed`, as training examples of `build_config`;
+    `examples` > 0 keeps that many of them (or all, if fewer fit max_length), drawn at random."""
+    format_config = build_config.format_config()
+    made_examples, categories = scene_examples(build_config, photos, scene_seed)
     if examples:  # tokens made in a random order until `examples` fit: the others cost nothing
         made_examples = list(made_examples)
         made_examples = [made_examples[i] for i in np.random.default_rng([scene_seed, number, examples])

@@ -4,7 +4,7 @@
     python results/pretrain/probes/chunk_time.py
 """
 
-import sys, time
+import time
 from kosmos_jax.experiments.spec import load_config
 from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.train.scene_stream import make_chunk

@@ -5,48 +5,25 @@ named object and its targets share a quadrant.
     python results/pretrain/probes/draw_stream_mosaics.py results/pretrain/probes/stream_mosaics.jpg
 """
 
-import dataclasses
-import importlib.util
-import pathlib
 import sys
-import tempfile
 
 import cv2
 import numpy as np
 
 from kosmos_jax import geometry
-from kosmos_jax.dataset import build as build_lib
-from kosmos_jax.dataset import samples as sample_stage
-from kosmos_jax.dataset.inputs import object_words, read_photos, word_source
-from kosmos_jax.dataset.views import augment_config, make_views
-from kosmos_jax.sources.synthetic import scenes
+from kosmos_jax.experiments.spec import load_config
+from kosmos_jax.train.batches import build_config
+from kosmos_jax.train.scene_stream import scene_examples
 
 KINDS = ("name", "colour", "shape", "purpose")
 PHOTOS, SEED = 16, 10_000  # a small chunk 0 of configs/pretrain.py's stream
 
 
-def build_config():
-    spec = importlib.util.spec_from_file_location("pretrain", "configs/pretrain.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    build = dict(module.get_config("demo_stream_instruct").data.build)
-    fields = {f.name for f in dataclasses.fields(build_lib.BuildConfig)} - {"tokenizer"}
-    config = build_lib.BuildConfig(**{k: v for k, v in build.items() if k in fields}, source="-", out="-")
-    return dataclasses.replace(config, seed=SEED, kinds=("all",))
-
-
 def main(out: str) -> None:
-    config = build_config()
-    single, multi = sample_stage.parse_kinds(config.kinds)
-    with tempfile.TemporaryDirectory() as folder:
-        source = pathlib.Path(folder) / "scenes"
-        scenes.write_dataset(source, photos=PHOTOS, seed=SEED)
-        photos, files = read_photos(source)
-        words = object_words(word_source(source, None), photos, files)
-    made, _ = make_views(photos, words, augment_config(config.augmentations, config.recipe, config.train_crop),
-                         SEED, {p.id: i for i, p in enumerate(photos)}, False, config.batch_size)
+    build = build_config(load_config("configs/pretrain.py:demo_stream_instruct").data)
+    examples, _ = scene_examples(build, PHOTOS, SEED)
     drawn = {}
-    for _, example in build_lib._examples(config, [made[k] for k in sorted(made)], single, multi, "train"):
+    for _, example in examples:
         if example.scene != "multi" or example.kind not in KINDS or example.kind in drawn:
             continue
         image = cv2.resize(np.asarray(example.image)[..., ::-1].copy(), (448, 448), interpolation=cv2.INTER_NEAREST)
