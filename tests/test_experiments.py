@@ -361,7 +361,7 @@ def test_data_size_files(tmp_path):
 
 
 @pytest.mark.parametrize("name,variant", [(name, variant) for name in EXPERIMENTS for variant in ("cpu", "paper")]
-                         + [(name, "cpu_demo") for name in DEMO_EXPERIMENTS])
+                         + [(name, "cpu_demo") for name in DEMO_EXPERIMENTS] + [("data_size", "cpu_scratch")])
 def test_experiment_config_builds(name, variant):
     config = spec.load_config(f"configs/experiments/{name}.py:{variant}")
     reports = checks.check_experiment(config)
@@ -469,6 +469,21 @@ def test_the_pretrained_data_sweep_fine_tunes_the_shipped_start_on_more_and_more
         assert b.model == tune.model and b.optimizer == tune.optimizer and b.train == tune.train and b.require_init
         assert b.data.build.augmentations == 4 and b.data.build.kinds == "non"
     assert spec.parse_folds(config.folds, config.k) == [0, 1, 2] and config.schemes == "image"
+
+
+def test_the_scratch_data_sweep_is_the_pretrained_one_without_its_start():
+    """The same arms, data, steps and folds as cpu_pretrained; the from-scratch recipe's model and rate."""
+    scratch_recipe = spec.load_config("configs/kosmos_e.py:demo_photos")
+    pretrained = spec.load_config("configs/experiments/data_size.py:cpu_pretrained")
+    config = spec.load_config("configs/experiments/data_size.py:cpu_scratch")
+    assert spec.arm_names(config) == spec.arm_names(pretrained)
+    assert (config.folds, config.schemes, config.protocols) == (pretrained.folds, pretrained.schemes, pretrained.protocols)
+    for name in spec.arm_names(config):
+        built, tuned = spec.arm_config(config, name), spec.arm_config(pretrained, name)
+        assert built.init_from == "" and not built.require_init
+        assert built.data == tuned.data and built.train == tuned.train
+        assert built.model == scratch_recipe.model and built.optimizer == scratch_recipe.optimizer
+        assert built.optimizer.peak_lr > tuned.optimizer.peak_lr
 
 
 def test_the_cpu_demo_tables_keep_the_cpu_folds_and_tests():

@@ -23,6 +23,8 @@ results/pretrain/demo_photos1200 (pretrained on 1,200 photos of seed 1000, none 
 fine-tuned for 800 steps (configs/kosmos_e.py:demo_photos_finetune) on 150, 300, 600 and 1,200 photos
 of seed 0, 4 augmentations each (1,200 is the demo's own data); honest protocol, image-wise folds 0, 1
 and 2 for the spread. About 10 minutes a fold on 2 quiet cores.
+cpu_scratch: cpu_pretrained's arms, data, steps and folds with no start: configs/kosmos_e.py:demo_photos
+(the from-scratch recipe at its own peak learning rate, 1e-3), the rows beside the pretrained ones.
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.
@@ -35,7 +37,8 @@ tell them from today's recipe, so a rerun must not carry them in.
 from kosmos_jax.experiments.spec import SHIPPED_START, arm, experiment
 
 CPU_STEPS = 200
-VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "paper")
+VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_scratch", "paper")
+PRETRAINED_PHOTOS = (150, 300, 600, 1200)
 
 
 def get_config(arg: str | None = None):
@@ -65,7 +68,11 @@ def get_config(arg: str | None = None):
     if variant == "cpu_pretrained":
         arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos_finetune", {
             "data.synthetic_photos": p, "data.build.kinds": "non", "init_from": SHIPPED_START}, series="photos")
-            for p in (150, 300, 600, 1200)}
+            for p in PRETRAINED_PHOTOS}
+        return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
+    if variant == "cpu_scratch":
+        arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos", {
+            "data.synthetic_photos": p, "data.build.kinds": "non"}, series="photos") for p in PRETRAINED_PHOTOS}
         return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
     arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
             for a in (4, 8, 16, 32)}
