@@ -14,7 +14,7 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from kosmos_jax.experiments import aggregate, carried, checks, data_size, records, runner, spec
+from kosmos_jax.experiments import aggregate, carried, checks, compare_sizes, data_size, records, runner, spec
 from kosmos_jax.experiments.spec import ExperimentError, arm, experiment
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -345,6 +345,63 @@ def test_data_size_leaves_out_a_one_point_series_that_another_line_draws():
     # would be a legend entry with nothing of its own; a one-point series on no other line stays
     rows = [r for r in size_rows() if r["arm"] != "a8"]
     assert set(data_size.lines(data_size.points(rows))) == {("honest", "photos", "image"), ("honest", "photos", "object")}
+
+
+def write_sweep(path, rows):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"experiment": "data_size", "rows": rows}))
+    return path
+
+
+def test_compare_sizes_draws_each_sweep_and_shared_references_once(tmp_path, capsys):
+    scratch_rows = [{**r, "fold_accuracies": [a - 5 for a in r["fold_accuracies"]], "mean": r["mean"] - 5}
+                    if r["kind"] == "trained" else r for r in size_rows()]
+    first = write_sweep(tmp_path / "a" / "results.json", size_rows())
+    second = write_sweep(tmp_path / "b" / "results.json", scratch_rows)
+    out = tmp_path / "plots" / "compare.png"
+    assert compare_sizes.main([f"--sweeps=pretrained={first},scratch={second}", f"--out={out}"]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "from 2 sweeps" in capsys.readouterr().out
+    written = json.loads(out.with_suffix(".json").read_text())
+    by_sweep = {(p["sweep"], p["series"], p["arm"], p["scheme"]): p["accuracy_mean"] for p in written["points"]}
+    assert by_sweep[("pretrained", "pretrained: photos", "p100", "image")] == 6.0
+    assert by_sweep[("scratch", "scratch: photos", "p100", "image")] == 1.0
+    assert by_sweep[("scratch", "scratch: augmentations", "a8", "image")] == 15.0
+    # the same tests in both sweeps: each reference once, as one sweep alone draws it
+    alone = data_size.references(size_rows(), data_size.points(size_rows()))
+    assert written["references"] == alone
+    chosen, references = compare_sizes.combined([("pretrained", size_rows()), ("scratch", scratch_rows)])
+    ax = data_size.figure(chosen, references).axes[0]
+    assert {"IW, pretrained: photos", "IW, scratch: photos", "OW, scratch: photos"} <= {
+        text.get_text() for text in ax.get_legend().get_texts()}
+
+
+def test_compare_sizes_names_arms_trained_on_different_data(tmp_path, capsys):
+    other = [{**r, "training_examples": [e + 1 for e in r["training_examples"]]} if r["arm"] == "p100" else r
+             for r in size_rows()]
+    first = write_sweep(tmp_path / "a.json", size_rows())
+    second = write_sweep(tmp_path / "b.json", other)
+    assert compare_sizes.main([f"--sweeps=a={first},b={second}", f"--out={tmp_path / 'c.png'}"]) == 0
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note:")]
+    assert len(notes) == 2 and all("p100" in note and "'a'" in note and "'b'" in note for note in notes)
+
+
+@pytest.mark.parametrize("sweeps,out,message", [
+    ("nolabel", "c.png", "LABEL=PATH"),
+    ("a=missing.json", "c.png", "cannot read"),
+    ("a=notresults.json", "c.png", "not an experiment's results.json"),
+    ("a=good.json,a=good.json", "c.png", "share a label"),
+    ("a=good.json", "c.pdf", ".png"),
+    ("a=empty.json", "c.png", "nothing to plot"),
+])
+def test_compare_sizes_refuses_bad_input_in_one_line(tmp_path, capsys, monkeypatch, sweeps, out, message):
+    monkeypatch.chdir(tmp_path)
+    write_sweep(tmp_path / "good.json", size_rows())
+    write_sweep(tmp_path / "empty.json", [r for r in size_rows() if r["kind"] != "trained"])
+    (tmp_path / "notresults.json").write_text("[1, 2]")
+    assert compare_sizes.main([f"--sweeps={sweeps}", f"--out={out}"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and len(error.splitlines()) == 1
+    assert not (tmp_path / "c.png").exists()
 
 
 def test_data_size_files(tmp_path):
