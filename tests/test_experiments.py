@@ -366,13 +366,27 @@ def test_compare_sizes_draws_each_sweep_and_shared_references_once(tmp_path, cap
     assert by_sweep[("pretrained", "pretrained: photos", "p100", "image")] == 6.0
     assert by_sweep[("scratch", "scratch: photos", "p100", "image")] == 1.0
     assert by_sweep[("scratch", "scratch: augmentations", "a8", "image")] == 15.0
-    # the same tests in both sweeps: each reference once, as one sweep alone draws it
+    # the same tests in both sweeps: each reference once, on the first sweep's lines, as that sweep alone draws it
     alone = data_size.references(size_rows(), data_size.points(size_rows()))
-    assert written["references"] == alone
+    assert [{**r, "series": r["series"].removeprefix("pretrained: ")} for r in written["references"]] == [
+        {**r, "sweep": "pretrained"} for r in alone]
     chosen, references = compare_sizes.combined([("pretrained", size_rows()), ("scratch", scratch_rows)])
     ax = data_size.figure(chosen, references).axes[0]
     assert {"IW, pretrained: photos", "IW, scratch: photos", "OW, scratch: photos"} <= {
         text.get_text() for text in ax.get_legend().get_texts()}
+
+
+def test_compare_sizes_draws_references_of_other_tests_on_their_own_sweeps_lines():
+    """A sweep scored on other tests (another image-centre figure) keeps its reference line apart: no line
+    joins one sweep's reference to another's."""
+    other_tests = [{**r, "mean": 9.0} if r["arm"] == "image_centre" else r for r in size_rows()]
+    chosen, references = compare_sizes.combined([("a", size_rows()), ("b", other_tests)])
+    assert sorted((r["sweep"], r["accuracy_mean"]) for r in references if r["predictor"] == "image_centre") == [
+        ("a", 4.0), ("a", 4.0), ("b", 9.0), ("b", 9.0)]
+    assert [r["sweep"] for r in references if r["predictor"] == "gt_mean_oracle"] == ["a", "a"]  # the same tests
+    ax = data_size.figure(chosen, references).axes[0]
+    dotted = [set(line.get_ydata()) for line in ax.get_lines() if line.get_linestyle() == ":"]
+    assert sorted(map(sorted, dotted)) == [[4.0], [4.0], [9.0], [9.0]]
 
 
 def test_compare_sizes_names_arms_trained_on_different_data(tmp_path, capsys):

@@ -38,7 +38,7 @@ from kosmos_jax.experiments.spec import SHIPPED_START, arm, experiment
 
 CPU_STEPS = 200
 VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_scratch", "paper")
-PRETRAINED_PHOTOS = (150, 300, 600, 1200)
+PHOTO_COUNTS = (150, 300, 600, 1200)  # cpu_pretrained's and cpu_scratch's arms
 
 
 def get_config(arg: str | None = None):
@@ -68,11 +68,11 @@ def get_config(arg: str | None = None):
     if variant == "cpu_pretrained":
         arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos_finetune", {
             "data.synthetic_photos": p, "data.build.kinds": "non", "init_from": SHIPPED_START}, series="photos")
-            for p in PRETRAINED_PHOTOS}
+            for p in PHOTO_COUNTS}
         return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
     if variant == "cpu_scratch":
         arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos", {
-            "data.synthetic_photos": p, "data.build.kinds": "non"}, series="photos") for p in PRETRAINED_PHOTOS}
+            "data.synthetic_photos": p, "data.build.kinds": "non"}, series="photos") for p in PHOTO_COUNTS}
         return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
     arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
             for a in (4, 8, 16, 32)}

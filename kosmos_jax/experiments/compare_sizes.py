@@ -5,8 +5,8 @@
 
 Each sweep is LABEL=PATH, PATH an experiment's results.json (the runner's aggregate of a
 data_size_plot experiment). Every series is drawn as data_size.py draws it, named "LABEL: series";
-the no-learning reference lines are drawn once where the sweeps scored the same tests (identical
-points), and once per sweep where they did not. Writes OUT (a PNG) and OUT with the suffix .json
+a no-learning reference point is drawn once where the sweeps scored the same tests (the same point),
+on its own sweep's line where they did not. Writes OUT (a PNG) and OUT with the suffix .json
 (the plotted points and references, each point with its sweep's label). A sweep whose arms share
 a name with another's but trained on a different number of examples is named in a printed note:
 its points are then not the same data.
@@ -47,22 +47,21 @@ def read_rows(path: pathlib.Path) -> list[dict]:
     return results["rows"]
 
 
-def labelled(label: str, rows: list[dict]) -> list[dict]:
-    """The rows with each trained arm's series renamed "LABEL: series" (an arm on two series keeps both)."""
-    return [{**row, "series": ",".join(f"{label}: {s}" for s in row["series"].split(","))}
-            if row["kind"] == "trained" and row.get("series") else row for row in rows]
+def of_sweep(label: str, point: dict) -> dict:
+    return {**point, "series": f"{label}: {point['series']}", "sweep": label}
 
 
 def combined(sweeps: list[tuple[str, list[dict]]]) -> tuple[list[dict], list[dict]]:
-    """(points, references) of every sweep: points labelled by sweep, identical references kept once."""
-    chosen, reference_points = [], []
+    """(points, references) of every sweep, each on its sweep's lines; a reference point that an earlier
+    sweep already has (the same tests scored) is left to that sweep's line."""
+    chosen, reference_points, seen = [], [], []
     for label, rows in sweeps:
-        points = [{**p, "sweep": label} for p in data_size.points(labelled(label, rows))]
-        unlabelled = [{**p, "series": p["series"].removeprefix(f"{label}: ")} for p in points]
-        for reference in data_size.references(rows, unlabelled):
-            if reference not in reference_points:
-                reference_points.append(reference)
-        chosen += points
+        points = data_size.points(rows)
+        for reference in data_size.references(rows, points):
+            if reference not in seen:
+                seen.append(reference)
+                reference_points.append(of_sweep(label, reference))
+        chosen += [of_sweep(label, point) for point in points]
     if not chosen:
         raise commands.UsageError("no sweep has an arm with a data-size series and a finished fold: nothing to plot")
     return chosen, reference_points
@@ -95,16 +94,15 @@ def compare_command(args) -> None:
     out = pathlib.Path(args.out)
     if out.suffix != ".png":
         raise commands.UsageError(f"--out must name a .png file, got {out}")
-    sweeps = [(label, read_rows(path)) for label, path in parse_sweeps(args.sweeps)]
+    paths = parse_sweeps(args.sweeps)
+    sweeps = [(label, read_rows(path)) for label, path in paths]
     for note in different_data(sweeps):
         print(f"note: {note}")
     chosen, reference_points = combined(sweeps)
     out.parent.mkdir(parents=True, exist_ok=True)
     data_size.figure(chosen, reference_points).savefig(out, dpi=120)
     out.with_suffix(".json").write_text(json.dumps({
-        "sweeps": {label: str(path) for label, path in parse_sweeps(args.sweeps)},
-        "x": "training examples (mean over folds of the train split's example count)",
-        "y": "grasp accuracy, percent (mean +- std over folds)", "points": chosen, "references": reference_points},
+        "sweeps": {label: str(path) for label, path in paths}, **data_size.plot_data(chosen, reference_points)},
         indent=1) + "\n")
     print(f"wrote {out} and {out.with_suffix('.json')}: {len(chosen)} points from {len(sweeps)} sweeps")
 

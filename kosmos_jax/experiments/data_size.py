@@ -93,14 +93,18 @@ def figure(chosen: list[dict], reference_points: list[dict] = ()) -> Figure:
     return fig
 
 
+def plot_data(chosen: list[dict], reference_points: list[dict]) -> dict:
+    """What a plot's JSON twin holds: its axes, points and reference points."""
+    return {"x": "training examples (mean over folds of the train split's example count)",
+            "y": "grasp accuracy, percent (mean +- std over folds)", "points": chosen, "references": reference_points}
+
+
 def write(root, rows: list[dict]) -> tuple[pathlib.Path, pathlib.Path]:
     root = pathlib.Path(root)
     chosen = points(rows)
     reference_points = references(rows, chosen)
     data = root / "data_size.json"
-    data.write_text(json.dumps({"x": "training examples (mean over folds of the train split's example count)",
-                                "y": "grasp accuracy, percent (mean +- std over folds)", "points": chosen,
-                                "references": reference_points}, indent=1) + "\n")
+    data.write_text(json.dumps(plot_data(chosen, reference_points), indent=1) + "\n")
     plot = root / "data_size.png"
     if chosen:
         figure(chosen, reference_points).savefig(plot, dpi=120)
