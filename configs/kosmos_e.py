@@ -150,9 +150,10 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     # weight of the contrastive loss matching each instruction's words with the tower's feature at its
     # grasp's patch among the batch's (train.phrase_patch.phrase_patch_sum); 0: none
     train.phrase_patch_loss = 0.0
-    # weight of the loss that reads the tower's grasp patch as its object's category (train.tower_category;
-    # the labels come from the scene stream: needs config.data.stream); 0: none
+    # weights of the losses that read the tower's grasp patch as its object's category and as its main
+    # colour (train.tower_labels; the labels come from the scene stream: needs config.data.stream); 0: none
     train.tower_category_loss = 0.0
+    train.tower_colour_loss = 0.0
     train.checkpoint_every = 10
     train.keep_checkpoints = 3
     train.seed = 0

@@ -36,12 +36,14 @@ def answer_batch(rng: np.random.Generator, count: int, slots: int, words: int, s
                 example_index=np.arange(count))
 
 
-def one_tiny_step(auxiliary, count: int, stored: int, extra: dict | None = None):
+def one_tiny_step(auxiliary, count: int, stored: int, extra: dict | None = None, vision_width: int | None = None):
     """(the tiny model without dropout, the batch as jax arrays, the metrics of one train step with
     `auxiliary`'s losses from that model) for an `answer_batch` of `count` examples (4 words), with
-    the `extra` fields added."""
+    the `extra` fields added; `vision_width` widens the tiny tower (for losses that need more reads)."""
     tiny = model_config.TINY.replace(text=dataclasses.replace(model_config.TINY.text, dropout=0.0,
                                                               attention_dropout=0.0))
+    if vision_width:
+        tiny = tiny.replace(vision=dataclasses.replace(tiny.vision, hidden_size=vision_width))
     on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
     tx, schedule = optimizer.make_optimizer(constant_adamw(1e-3), total_steps=1)
     batch = {**answer_batch(np.random.default_rng(0), count, tiny.latent_query_num, words=4, stored=stored,

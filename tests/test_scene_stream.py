@@ -19,7 +19,7 @@ from kosmos_jax.train import trainer
 from kosmos_jax.train.metrics_log import train_losses
 from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.train.scene_stream import CHUNK_STRIDE, SceneStream
-from kosmos_jax.train.tower_category import CATEGORY_NAMES
+from kosmos_jax.train.tower_labels import LABEL_NAMES
 
 pytestmark = pytest.mark.xdist_group("scene_stream")
 
@@ -91,9 +91,10 @@ def test_a_batch_the_processes_cannot_share_is_refused(stream_parts):
         stream(stream_parts, global_batch=8, process_count=3)
 
 
-def test_each_example_carries_its_target_objects_category(stream_parts, tmp_path):
+def test_each_example_carries_its_target_objects_category_and_main_colour(stream_parts, tmp_path):
     """Oracle: the chunk's scenes written again from their seed, and the photo whose place holds the
     target grasp (a mosaic's quadrant in its photo order, or the one photo)."""
+    categories, colours = LABEL_NAMES["category"], LABEL_NAMES["colour"]
     config, _, _ = stream_parts
     chunk = stream(stream_parts).chunk(0)
     scenes.write_dataset(tmp_path / "scenes", photos=config.data.stream.photos, seed=config.data.stream.seed)
@@ -105,9 +106,11 @@ def test_each_example_carries_its_target_objects_category(stream_parts, tmp_path
         x, y = chunk.arrays["grasp"][row, :2]
         place = 0 if len(photos) == 1 else 2 * int(y >= side / 2) + int(x >= side / 2)
         mosaics += len(photos) == 4
-        assert chunk.arrays["category"][row] == CATEGORY_NAMES.index(meta[photos[place]]["category"]), label
+        assert chunk.arrays["category"][row] == categories.index(meta[photos[place]]["category"]), label
+        assert chunk.arrays["colour"][row] == colours.index(meta[photos[place]]["colour"][0]), label
     assert mosaics and mosaics < len(chunk.labels)
-    assert set(chunk.arrays["category"].tolist()) == {CATEGORY_NAMES.index(m["category"]) for m in meta.values()}
+    assert set(chunk.arrays["category"].tolist()) == {categories.index(m["category"]) for m in meta.values()}
+    assert set(chunk.arrays["colour"].tolist()) == {colours.index(m["colour"][0]) for m in meta.values()}
 
 
 def test_stream_seeds_must_lie_above_the_test_scenes_seed():

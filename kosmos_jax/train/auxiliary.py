@@ -27,7 +27,8 @@ class AuxiliaryLosses:
     slot_offset_loss: float = 0.0
     answer_pointing_loss: float = 0.0  # needs the slots to be the patches: pointing_target "identity"
     phrase_patch_loss: float = 0.0  # the instruction's words against the tower's grasp patch (train.phrase_patch)
-    tower_category_loss: float = 0.0  # the tower's grasp patch read as its object's category (train.tower_category)
+    tower_category_loss: float = 0.0  # the tower's grasp patch read as its object's category (train.tower_labels)
+    tower_colour_loss: float = 0.0  # ... and as its object's main colour
 
     def __post_init__(self):
         if self.pointing_target not in POINTING_TARGETS:
@@ -45,6 +46,10 @@ class AuxiliaryLosses:
     def from_config(cls, train_config) -> AuxiliaryLosses:
         """The settings `train_config` (a ConfigDict or mapping) names; those it lacks (older runs' configs) keep their defaults."""
         return cls(**{f.name: train_config[f.name] for f in dataclasses.fields(cls) if f.name in train_config})
+
+    def tower_labels(self) -> tuple[str, ...]:
+        """The object labels ("category", "colour") the tower-label losses on read, each from the scene stream."""
+        return tuple(kind for kind in ("category", "colour") if getattr(self, f"tower_{kind}_loss"))
 
     def weights(self) -> dict[str, float]:
         """{name: weight} of the losses this step adds to its objective (and logs), named as they are logged."""

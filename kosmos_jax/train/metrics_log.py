@@ -16,7 +16,7 @@ import sys
 
 METRICS_FILE = "metrics.jsonl"
 AUXILIARY_LOSSES = ("pointing", "patch_angle", "tower_angle", "slot_angle", "tower_offset", "slot_offset", "answer_pointing",
-                    "phrase_patch", "tower_category")  # logged beside the loss when a run adds them
+                    "phrase_patch", "tower_category", "tower_colour")  # logged beside the loss when a run adds them
 
 
 def _plain(value):

@@ -10,8 +10,8 @@ remakes that chunk, so a resumed run sees the same batches as one never stopped.
 is made in a background thread while the current one is read.
 
 An example's `example_index` is chunk * CHUNK_STRIDE + its place in the chunk: unique across the
-stream, so dropout masks (drawn from it) never repeat either. Its `category` is the label of its
-target object's category (`tower_category`), which only scenes made here can give.
+stream, so dropout masks (drawn from it) never repeat either. Its `category` and `colour` are the labels
+of its target object's category and main colour (`tower_labels`), which only scenes made here can give.
 """
 
 from __future__ import annotations
@@ -32,15 +32,17 @@ from kosmos_jax.dataset.pipeline import to_arrays
 from kosmos_jax.dataset.tfds_builders import example_record
 from kosmos_jax.dataset.views import augment_config, make_views
 from kosmos_jax.text import layout
-from kosmos_jax.train.step import CATEGORY_KEY
-from kosmos_jax.train.tower_category import category_label
+from kosmos_jax.train.tower_labels import LABEL_KEYS, label_of
 
 CHUNK_STRIDE = 10**7  # more examples than any chunk makes
 
 
-def photo_categories(metadata: dict) -> dict[str, int]:
-    """{photo id: its object's category label} from a synthetic folder's metadata (its parsed synthetic_meta.json)."""
-    return {photo_id: category_label(meta["category"]) for photo_id, meta in metadata["photos"].items()}
+def photo_labels(metadata: dict) -> dict[str, dict[str, int]]:
+    """{photo id: {label kind: its object's label}} from a synthetic folder's metadata (its parsed
+    synthetic_meta.json); an object's colour is its main one, the first it lists."""
+    return {photo_id: {"category": label_of("category", meta["category"]),
+                       "colour": label_of("colour", meta["colour"][0])}
+            for photo_id, meta in metadata["photos"].items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,22 +53,22 @@ class Chunk:
 
 def scene_examples(build_config: build_lib.BuildConfig, photos: int, scene_seed: int):
     """(the (sample, text example) pairs of `photos` fresh scenes of `scene_seed` as `build_config`'s training
-    split makes them, in its order; {photo id: category label}). The scenes' files are gone on return."""
+    split makes them, in its order; {photo id: {label kind: label}}). The scenes' files are gone on return."""
     config = dataclasses.replace(build_config, seed=scene_seed)
     single, multi = sample_stage.parse_kinds(config.kinds or ("all",))
     with tempfile.TemporaryDirectory(prefix="kosmos_jax-stream-") as folder:
         source = pathlib.Path(folder) / "scenes"
         scenes.write_dataset(source, photos=photos, seed=scene_seed)
         photo_list, image_files = read_photos(source)
-        words_from = word_source(source, None)  # the scenes' metadata, read once for the words and the categories
+        words_from = word_source(source, None)  # the scenes' metadata, read once for the words and the labels
         words = object_words(words_from, photo_list, image_files)
-        categories = photo_categories(words_from.document)
+        object_labels = photo_labels(words_from.document)
     index = {p.id: i for i, p in enumerate(photo_list)}
     made, _ = make_views(photo_list, words, augment_config(config.augmentations, config.recipe,
                                                            config.train_crop or "gt_centroid"),
                          scene_seed, index, False, config.batch_size)
     views = [made[key] for key in sorted(made)]
-    return build_lib._examples(config, views, single, multi, "train"), categories
+    return build_lib._examples(config, views, single, multi, "train"), object_labels
 
 
 def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scene_seed: int, number: int,
@@ -74,7 +76,7 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
     """Chunk `number` of the stream: `photos` scenes of `scene_seed`, as training examples of `build_config`;
     `examples` > 0 keeps that many of them (or all, if fewer fit max_length), drawn at random."""
     format_config = build_config.format_config()
-    made_examples, categories = scene_examples(build_config, photos, scene_seed)
+    made_examples, object_labels = scene_examples(build_config, photos, scene_seed)
     if examples:  # tokens made in a random order until `examples` fit: the others cost nothing
         made_examples = list(made_examples)
         made_examples = [made_examples[i] for i in np.random.default_rng([scene_seed, number, examples])
@@ -90,7 +92,8 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
             continue
         record = example_record(encoded, example)
         arrays = to_arrays(record, max_answers=64, example_index=number * CHUNK_STRIDE + len(rows))
-        arrays[CATEGORY_KEY] = np.int32(categories[example.photo_ids[example.target]])
+        for kind, label in object_labels[example.photo_ids[example.target]].items():
+            arrays[LABEL_KEYS[kind]] = np.int32(label)
         rows.append(arrays)
         labels.append(f"{'+'.join(example.photo_ids)} ({sample_stage.kind_label(sample)})")
     order = np.random.default_rng([scene_seed, number]).permutation(len(rows))

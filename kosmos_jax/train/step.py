@@ -44,19 +44,18 @@ from kosmos_jax.train.loss import (answer_pointing_sum, circular_kernel, means, 
                                    slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
                                    tower_offset_sum)
 from kosmos_jax.train.phrase_patch import phrase_patch_sum
-from kosmos_jax.train.tower_category import tower_category_sum
+from kosmos_jax.train.tower_labels import LABEL_KEYS, tower_label_sum
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
 BATCH_KEYS = ("image", "tokens", "loss_mask", "image_mask", "length", "grasp")
 TRAIN_KEYS = BATCH_KEYS + ("example_index",)  # the train step's: the examples' ids key their dropout masks
-CATEGORY_KEY = "category"  # the target object's category, made only by the scene stream (train.tower_category)
 _DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws of the same seed
 
 
 def train_keys(auxiliary: AuxiliaryLosses) -> tuple[str, ...]:
     """The batch fields the train step with these losses reads."""
-    return TRAIN_KEYS + ((CATEGORY_KEY,) if auxiliary.tower_category_loss else ())
+    return TRAIN_KEYS + tuple(LABEL_KEYS[kind] for kind in auxiliary.tower_labels())
 
 
 def dropout_key(seed: int, step: jax.Array) -> jax.Array:
@@ -159,8 +158,8 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
       which image slot holds the target grasp's patch (the slots taught to be the patches);
     - phrase_patch: `phrase_patch.phrase_patch_sum`, each instruction's words matched with the tower's
       feature at its grasp's patch among the (micro)batch's;
-    - tower_category: `tower_category.tower_category_sum`, the tower's feature at the grasp's patch
-      read as its object's category (the batch's `category`, from the scene stream).
+    - tower_category / tower_colour: `tower_labels.tower_label_sum`, the tower's feature at the grasp's
+      patch read as its object's category or main colour (the batch's labels, from the scene stream).
     Each is added to the loss with its weight. With `angle_smoothing` > 0 (a width in angle bins) the
     gradient is that of circular smooth labels on the angle tokens (`loss.smoothed_angle_sum`;
     angle_ids: each bin's token id), while `loss` stays the plain cross-entropy, comparable with runs
@@ -208,9 +207,9 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
             sums["phrase_patch_sum"] = phrase_patch_sum(features, model.text_model.model.embed_tokens.embedding[...],
                                                         batch["tokens"], attention_mask(batch), batch["image_mask"],
                                                         batch["loss_mask"], batch["grasp"], side)
-        if "tower_category" in weights:
-            sums["tower_category_sum"] = tower_category_sum(features, batch[CATEGORY_KEY], batch["grasp"], side,
-                                                            batch["loss_mask"])
+        for kind in auxiliary.tower_labels():
+            sums[f"tower_{kind}_sum"] = tower_label_sum(kind, features, batch[LABEL_KEYS[kind]], batch["grasp"], side,
+                                                       batch["loss_mask"])
         if "answer_pointing" in weights:
             sums["answer_pointing_sum"] = answer_pointing_sum(hidden, batch["image_mask"], image_embeds.shape[1],
                                                                batch["grasp"], side, batch["loss_mask"])

@@ -176,11 +176,12 @@ def stream_settings(data_config) -> dict | None:
     return settings
 
 
-def check_category_source(auxiliary: AuxiliaryLosses, stream: dict | None) -> None:
-    """The tower-category loss reads each example's object category, which only the scene stream attaches."""
-    if auxiliary.tower_category_loss and not stream:
-        raise ValueError("config.train.tower_category_loss reads each example's object category, which only the scene "
-                         "stream attaches (from the scenes' metadata): give config.data.stream.photos > 0, or leave it 0")
+def check_label_source(auxiliary: AuxiliaryLosses, stream: dict | None) -> None:
+    """The tower-label losses read each example's object labels, which only the scene stream attaches."""
+    for kind in auxiliary.tower_labels():
+        if not stream:
+            raise ValueError(f"config.train.tower_{kind}_loss reads each example's object {kind}, which only the scene "
+                             "stream attaches (from the scenes' metadata): give config.data.stream.photos > 0, or leave it 0")
 
 
 def scene_batches(config, stream: dict, tokenizer, process_index: int = 0,
@@ -215,7 +216,7 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
                                          jax.process_index(), jax.process_count())
         describe = lambda host: batches_lib.describe_examples(splits["train"], host["example_index"])
     auxiliary = AuxiliaryLosses.from_config(config.train)
-    check_category_source(auxiliary, stream)
+    check_label_source(auxiliary, stream)
     step_keys = train_keys(auxiliary)
     train_step = make_train_step(model_cfg, tx, schedule, mesh, microbatches=config.train.microbatches,
                                  seed=config.train.seed, auxiliary=auxiliary,

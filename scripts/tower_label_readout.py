@@ -1,8 +1,8 @@
-"""The tower-category loss's own readout (train.tower_category) of a run, on scene-stream chunks it never
-trained on, by scene (issue 22): does the tower tell the category of an object it has not seen, on
-single photos and on mosaics?
+"""A tower-label loss's own readout (train.tower_labels) of a run, on scene-stream chunks it never
+trained on, by scene (issue 22): does the tower tell the category (or the main colour) of an object
+it has not seen, on single photos and on mosaics?
 
-    python scripts/tower_category_readout.py --workdir=runs/pretrain/W [--chunks=900,901] [--step=N]
+    python scripts/tower_label_readout.py --workdir=runs/pretrain/W [--label=category|colour] [--chunks=900,901] [--step=N]
 
 The chunks are the run's own stream (its config) at numbers past any its training reached (default
 900 and 901: seeds stream.seed + 900, ...). Prints one JSON line: per scene, the examples, the share whose
@@ -20,22 +20,21 @@ from flax import nnx
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import batches, trainer
-from kosmos_jax.train.step import CATEGORY_KEY
-from kosmos_jax.train.tower_category import category_logits
+from kosmos_jax.train.tower_labels import LABEL_KEYS, LABEL_NAMES, label_logits
 from kosmos_jax.workdir.run import open_run
 
 
 @nnx.jit
-def tower_logits(model, images, grasp):
-    features = model.vision_model(pixels(images, model.config.vision.image_size))
-    return category_logits(features, grasp, images.shape[1])
+def tower_features(model, images):
+    return model.vision_model(pixels(images, model.config.vision.image_size))
 
 
-def scores(model, arrays, scene, batch_size=64) -> dict:
-    logits = np.concatenate([np.asarray(tower_logits(model, jnp.asarray(arrays["image"][i:i + batch_size]),
-                                                     jnp.asarray(arrays["grasp"][i:i + batch_size])))
-                             for i in range(0, len(scene), batch_size)])
-    labels = arrays[CATEGORY_KEY]
+def scores(model, kind, arrays, scene, batch_size=64) -> dict:
+    side = arrays["image"].shape[1]
+    batches_of = lambda key: [jnp.asarray(arrays[key][i:i + batch_size]) for i in range(0, len(scene), batch_size)]
+    logits = np.concatenate([np.asarray(label_logits(kind, tower_features(model, images), grasp, side))
+                             for images, grasp in zip(batches_of("image"), batches_of("grasp"))])
+    labels = arrays[LABEL_KEYS[kind]]
     shifted = logits - logits.max(1, keepdims=True)
     log_p = shifted - np.log(np.exp(shifted).sum(1, keepdims=True))
     out = {}
@@ -50,6 +49,7 @@ def scores(model, arrays, scene, batch_size=64) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workdir", required=True)
+    parser.add_argument("--label", default="category", choices=sorted(LABEL_NAMES), help="the label set to read")
     parser.add_argument("--chunks", default="900,901", help="comma-separated chunk numbers of the run's stream")
     parser.add_argument("--step", type=int, default=None, help="checkpoint (default: the newest)")
     args = parser.parse_args()
@@ -60,16 +60,16 @@ def main() -> None:
     stream = trainer.scene_batches(run.config, settings, batches.prepare(run.config.data).tokenizer())
     chunks = [stream.chunk(int(n)) for n in args.chunks.split(",")]
     stream.close()
-    arrays = {key: np.concatenate([c.arrays[key] for c in chunks]) for key in ("image", "grasp", CATEGORY_KEY)}
+    arrays = {key: np.concatenate([c.arrays[key] for c in chunks]) for key in ("image", "grasp", LABEL_KEYS[args.label])}
     scene = np.asarray(["multi" if "+" in label.split(" (")[0] else "single" for c in chunks for label in c.labels])
     finite = np.isfinite(arrays["grasp"][:, :2]).all(1)
     arrays, scene = {key: value[finite] for key, value in arrays.items()}, scene[finite]
     step, params = run.params(args.step)
     untrained = build(run.model_config, run.config.train.seed)
     graphdef, _, rest = split_model(untrained)
-    result = {"workdir": args.workdir, "step": step, "chunks": args.chunks}
+    result = {"workdir": args.workdir, "step": step, "chunks": args.chunks, "label": args.label}
     for name, model in (("trained", nnx.merge(graphdef, params, rest)), ("untrained", untrained)):
-        result[name] = scores(nnx.view(model, deterministic=True), arrays, scene)
+        result[name] = scores(nnx.view(model, deterministic=True), args.label, arrays, scene)
     print(json.dumps(result))
 
 
