@@ -48,7 +48,7 @@ class AuxiliaryLosses:
         return cls(**{f.name: train_config[f.name] for f in dataclasses.fields(cls) if f.name in train_config})
 
     def tower_labels(self) -> tuple[str, ...]:
-        """The object labels ("category", "colour") the tower-label losses on read, each from the scene stream."""
+        """The object labels ("category", "colour") that this run's tower-label losses read (the scene stream's)."""
         return tuple(kind for kind in ("category", "colour") if getattr(self, f"tower_{kind}_loss"))
 
     def weights(self) -> dict[str, float]:
