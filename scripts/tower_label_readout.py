@@ -2,7 +2,8 @@
 trained on, by scene (issue 22): does the tower tell the category (or the main colour) of an object
 it has not seen, on single photos and on mosaics?
 
-    python scripts/tower_label_readout.py --workdir=runs/pretrain/W [--label=category|colour] [--chunks=900,901] [--step=N]
+    python scripts/tower_label_readout.py --workdir=runs/pretrain/W [--label=category|colour] \
+        [--chunks=900,901] [--step=N]
 
 The chunks are the run's own stream (its config) at numbers past any its training reached (default
 900 and 901: seeds stream.seed + 900, ...). Prints one JSON line: per scene, the examples, the share whose
@@ -11,6 +12,7 @@ cross-entropy there, for the trained tower and for the run's untrained start.
 """
 
 import argparse
+import functools
 import json
 
 import jax.numpy as jnp
@@ -20,21 +22,21 @@ from flax import nnx
 from kosmos_jax.models.kosmos2 import build, split_model
 from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.train import batches, trainer
-from kosmos_jax.train.tower_labels import LABEL_KEYS, LABEL_NAMES, label_logits
+from kosmos_jax.train.tower_labels import LABEL_NAMES, label_logits
 from kosmos_jax.workdir.run import open_run
 
 
-@nnx.jit
-def tower_features(model, images):
-    return model.vision_model(pixels(images, model.config.vision.image_size))
+@functools.partial(nnx.jit, static_argnames="kind")
+def tower_logits(model, images, grasp, kind):
+    features = model.vision_model(pixels(images, model.config.vision.image_size))
+    return label_logits(kind, features, grasp, images.shape[1])
 
 
 def scores(model, kind, arrays, scene, batch_size=64) -> dict:
-    side = arrays["image"].shape[1]
-    batches_of = lambda key: [jnp.asarray(arrays[key][i:i + batch_size]) for i in range(0, len(scene), batch_size)]
-    logits = np.concatenate([np.asarray(label_logits(kind, tower_features(model, images), grasp, side))
-                             for images, grasp in zip(batches_of("image"), batches_of("grasp"))])
-    labels = arrays[LABEL_KEYS[kind]]
+    logits = np.concatenate([np.asarray(tower_logits(model, jnp.asarray(arrays["image"][i:i + batch_size]),
+                                                     jnp.asarray(arrays["grasp"][i:i + batch_size]), kind=kind))
+                             for i in range(0, len(scene), batch_size)])
+    labels = arrays[kind]
     shifted = logits - logits.max(1, keepdims=True)
     log_p = shifted - np.log(np.exp(shifted).sum(1, keepdims=True))
     out = {}
@@ -60,7 +62,7 @@ def main() -> None:
     stream = trainer.scene_batches(run.config, settings, batches.prepare(run.config.data).tokenizer())
     chunks = [stream.chunk(int(n)) for n in args.chunks.split(",")]
     stream.close()
-    arrays = {key: np.concatenate([c.arrays[key] for c in chunks]) for key in ("image", "grasp", LABEL_KEYS[args.label])}
+    arrays = {key: np.concatenate([c.arrays[key] for c in chunks]) for key in ("image", "grasp", args.label)}
     scene = np.asarray(["multi" if "+" in label.split(" (")[0] else "single" for c in chunks for label in c.labels])
     finite = np.isfinite(arrays["grasp"][:, :2]).all(1)
     arrays, scene = {key: value[finite] for key, value in arrays.items()}, scene[finite]

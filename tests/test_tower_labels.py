@@ -115,10 +115,10 @@ def test_labels_are_names_places_and_unknown_names_are_refused():
 def test_a_run_without_the_scene_stream_is_refused():
     for kind in KINDS:
         on = AuxiliaryLosses(**{f"tower_{kind}_loss": 1.0})
-        with pytest.raises(ValueError, match=f"tower_{kind}_loss reads each example's object {kind}, which only the scene stream"):
+        with pytest.raises(ValueError, match=f"tower_{kind}_loss reads each example's object {kind}, which only the scene"):
             trainer.check_label_source(on, None)
         trainer.check_label_source(on, {"photos": 8, "seed": 10_000})
-        assert step.train_keys(on) == step.TRAIN_KEYS + (tower_labels.LABEL_KEYS[kind],)
+        assert step.train_keys(on) == step.TRAIN_KEYS + (kind,)
     trainer.check_label_source(AuxiliaryLosses(), None)
     assert step.train_keys(AuxiliaryLosses()) == step.TRAIN_KEYS
     both = AuxiliaryLosses(tower_category_loss=1.0, tower_colour_loss=0.5)

@@ -259,7 +259,8 @@ ADDED_AT = {"init_step": -1, "data.build.tokenizer_scheme": "fairseq", "data.str
             "data.stream.seed": 10_000, "train.pointing_target": "cell",
             "train.tower_offset_loss": 0.0, "train.slot_offset_loss": 0.0, "decode.value_window": 0,
             "decode.angle_window": 0, "train.phrase_patch_loss": 0.0,
-            "train.tower_category_loss": 0.0, "train.tower_colour_loss": 0.0, "data.stream.kinds": "", "model.connector_instruction": False,
+            "train.tower_category_loss": 0.0, "train.tower_colour_loss": 0.0, "data.stream.kinds": "",
+            "model.connector_instruction": False,
             "train.answer_pointing_loss": 0.0, "data.validation_fraction": 0.0,
             "data.stream.examples": 0}
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 
 from kosmos_jax.train.loss import POINTING_TARGETS
+from kosmos_jax.train.tower_labels import LABEL_NAMES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +50,7 @@ class AuxiliaryLosses:
 
     def tower_labels(self) -> tuple[str, ...]:
         """The object labels ("category", "colour") that this run's tower-label losses read (the scene stream's)."""
-        return tuple(kind for kind in ("category", "colour") if getattr(self, f"tower_{kind}_loss"))
+        return tuple(kind for kind in LABEL_NAMES if getattr(self, f"tower_{kind}_loss"))
 
     def weights(self) -> dict[str, float]:
         """{name: weight} of the losses this step adds to its objective (and logs), named as they are logged."""

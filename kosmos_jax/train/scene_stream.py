@@ -32,7 +32,7 @@ from kosmos_jax.dataset.pipeline import to_arrays
 from kosmos_jax.dataset.tfds_builders import example_record
 from kosmos_jax.dataset.views import augment_config, make_views
 from kosmos_jax.text import layout
-from kosmos_jax.train.tower_labels import LABEL_KEYS, label_of
+from kosmos_jax.train.tower_labels import label_of
 
 CHUNK_STRIDE = 10**7  # more examples than any chunk makes
 
@@ -93,7 +93,7 @@ def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scen
         record = example_record(encoded, example)
         arrays = to_arrays(record, max_answers=64, example_index=number * CHUNK_STRIDE + len(rows))
         for kind, label in object_labels[example.photo_ids[example.target]].items():
-            arrays[LABEL_KEYS[kind]] = np.int32(label)
+            arrays[kind] = np.int32(label)
         rows.append(arrays)
         labels.append(f"{'+'.join(example.photo_ids)} ({sample_stage.kind_label(sample)})")
     order = np.random.default_rng([scene_seed, number]).permutation(len(rows))

@@ -44,7 +44,7 @@ from kosmos_jax.train.loss import (answer_pointing_sum, circular_kernel, means, 
                                    slot_angle_sum, slot_offset_sum, smoothed_angle_sum, token_sums, tower_angle_sum,
                                    tower_offset_sum)
 from kosmos_jax.train.phrase_patch import phrase_patch_sum
-from kosmos_jax.train.tower_labels import LABEL_KEYS, tower_label_sum
+from kosmos_jax.train.tower_labels import tower_label_sum
 from kosmos_jax.train.mesh import batch_sharding, replicated
 from kosmos_jax.train.state import TrainState, abstract_train_state
 
@@ -55,7 +55,7 @@ _DROPOUT_STREAM = 0x64726F70  # keeps dropout keys apart from the init's draws o
 
 def train_keys(auxiliary: AuxiliaryLosses) -> tuple[str, ...]:
     """The batch fields the train step with these losses reads."""
-    return TRAIN_KEYS + tuple(LABEL_KEYS[kind] for kind in auxiliary.tower_labels())
+    return TRAIN_KEYS + auxiliary.tower_labels()  # each label under its kind's name
 
 
 def dropout_key(seed: int, step: jax.Array) -> jax.Array:
@@ -208,8 +208,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
                                                         batch["tokens"], attention_mask(batch), batch["image_mask"],
                                                         batch["loss_mask"], batch["grasp"], side)
         for kind in auxiliary.tower_labels():
-            sums[f"tower_{kind}_sum"] = tower_label_sum(kind, features, batch[LABEL_KEYS[kind]], batch["grasp"], side,
-                                                       batch["loss_mask"])
+            sums[f"tower_{kind}_sum"] = tower_label_sum(kind, features, batch[kind], batch["grasp"], side, batch["loss_mask"])
         if "answer_pointing" in weights:
             sums["answer_pointing_sum"] = answer_pointing_sum(hidden, batch["image_mask"], image_embeds.shape[1],
                                                                batch["grasp"], side, batch["loss_mask"])

@@ -1,7 +1,7 @@
 """The tower-label losses: the vision tower's feature at the target grasp's patch read out as a label of
 the object there, its category (`tower_category_loss`) or its main colour (`tower_colour_loss`), with
 the labels the synthetic scenes' metadata gives (the scene stream attaches each example's target
-object's labels to it, under LABEL_KEYS).
+object's labels to it, each under its kind's name).
 
 Why: on mosaics the object words must find their photo, and at the named object's patch the
 stream-pretrained tower gives its category to a linear readout for only 31% of validation mosaics
@@ -28,7 +28,6 @@ from kosmos_jax.train.phrase_patch import TEMPERATURE, shared_directions, unit
 
 LABEL_NAMES = {"category": tuple(sorted(CATEGORIES)),  # a label is its name's place in its set
                "colour": tuple(sorted(PALETTE))}  # an object's main colour: the first of its colours
-LABEL_KEYS = {"category": "category", "colour": "colour"}  # each label set's batch key
 CATEGORY_NAMES = LABEL_NAMES["category"]
 NO_LABEL = -1
 _SEEDS = {"category": 4, "colour": 5}

@@ -178,10 +178,10 @@ def stream_settings(data_config) -> dict | None:
 
 def check_label_source(auxiliary: AuxiliaryLosses, stream: dict | None) -> None:
     """The tower-label losses read each example's object labels, which only the scene stream attaches."""
-    for kind in auxiliary.tower_labels():
-        if not stream:
-            raise ValueError(f"config.train.tower_{kind}_loss reads each example's object {kind}, which only the scene "
-                             "stream attaches (from the scenes' metadata): give config.data.stream.photos > 0, or leave it 0")
+    kinds = auxiliary.tower_labels()
+    if kinds and not stream:
+        raise ValueError(f"config.train.tower_{kinds[0]}_loss reads each example's object {kinds[0]}, which only the "
+                         "scene stream attaches (from the scenes' metadata): give config.data.stream.photos > 0, or leave it 0")
 
 
 def scene_batches(config, stream: dict, tokenizer, process_index: int = 0,
