@@ -6,11 +6,7 @@ targets scored as answers (the target ceiling) and the distinct answers; the err
 a Cornell-format folder of synthetic photos."""
 
 import json
-import os
-import pathlib
 import shutil
-import subprocess
-import sys
 
 import jax
 import numpy as np
@@ -29,40 +25,23 @@ from kosmos_jax.scoring.tally import angle_errors, angle_fit, distinct, markdown
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
 from kosmos_jax.workdir.run import open_run
+from user_commands import run_module, train_tiny
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
 # one worker: the tests share one trained run, which each worker would otherwise train again
 pytestmark = pytest.mark.xdist_group("evaluate")
-
-
-def run_module(*args) -> subprocess.CompletedProcess:
-    """`python -m ARGS` as a user runs it, on one CPU device."""
-    env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
-    env.pop("XLA_FLAGS", None)  # conftest's eight fake devices: only slower to compile for
-    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=REPO, env=env, capture_output=True, text=True,
-                          timeout=600)
 
 
 @pytest.fixture(scope="session")
 def workdir(tmp_path_factory):
     """A tiny run of two steps, written by the trainer."""
-    workdir, root = tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets")
-    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
-                      f"--config.data.root={root}", "--config.train.steps=2", "--config.train.checkpoint_every=2",
-                      "--config.optimizer.warmup_steps=1")
-    assert done.returncode == 0, done.stderr[-3000:]
-    return workdir
+    return train_tiny(tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets"))
 
 
 @pytest.fixture(scope="session")
 def values_workdir(tmp_path_factory):
     """A tiny run of two steps whose vocabulary has value tokens (numbers=values), as the demo's has."""
-    workdir, root = tmp_path_factory.mktemp("values_run"), tmp_path_factory.mktemp("values_datasets")
-    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
-                      f"--config.data.root={root}", "--config.data.build.numbers=values", "--config.train.steps=2",
-                      "--config.train.checkpoint_every=2", "--config.optimizer.warmup_steps=1")
-    assert done.returncode == 0, done.stderr[-3000:]
-    return workdir
+    return train_tiny(tmp_path_factory.mktemp("values_run"), tmp_path_factory.mktemp("values_datasets"),
+                      "--config.data.build.numbers=values")
 
 
 @pytest.fixture(scope="session")

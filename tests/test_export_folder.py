@@ -5,11 +5,7 @@ starts from the folder; a folder without kosmos_e.json, and bad export input, gi
 
 import dataclasses
 import json
-import os
-import pathlib
 import shutil
-import subprocess
-import sys
 
 import cv2
 import jax.numpy as jnp
@@ -21,19 +17,11 @@ from kosmos_jax.models import weights
 from kosmos_jax.models.config import EXTENDED_MODEL_TYPE, TINY
 from kosmos_jax.models.kosmos2 import build, forward
 from kosmos_jax.workdir.run import open_run
+from user_commands import REPO, run_module, train_tiny
 
 pytestmark = pytest.mark.xdist_group("export_folder")  # one worker: the tests share one trained run
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
 GRID_CODE = 3.0
-
-
-def run_module(*args) -> subprocess.CompletedProcess:
-    """`python -m ARGS` as a user runs it, on one CPU device (as tests/test_predict.py does)."""
-    env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
-    env.pop("XLA_FLAGS", None)
-    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=REPO, env=env, capture_output=True, text=True,
-                          timeout=600)
 
 
 def params_of(model):
@@ -72,11 +60,7 @@ def test_a_grid_code_model_round_trips_through_its_folder(tmp_path):
 def grid_run(tmp_path_factory):
     """A tiny run of two steps with a grid code, written by the trainer."""
     workdir, root = tmp_path_factory.mktemp("grid_run"), tmp_path_factory.mktemp("grid_datasets")
-    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
-                      f"--config.data.root={root}", "--config.train.steps=2", "--config.train.checkpoint_every=2",
-                      "--config.optimizer.warmup_steps=1", f"--config.model.connector_grid_code={GRID_CODE}")
-    assert done.returncode == 0, done.stderr[-3000:]
-    return workdir
+    return train_tiny(workdir, root, f"--config.model.connector_grid_code={GRID_CODE}")
 
 
 @pytest.fixture(scope="session")

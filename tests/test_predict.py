@@ -7,11 +7,7 @@ input's one clear error; the overlay's red rectangle; `python -m kosmos_jax.pred
 
 import json
 import math
-import os
-import pathlib
 import shutil
-import subprocess
-import sys
 
 import cv2
 import jax
@@ -29,18 +25,10 @@ from kosmos_jax.predict.images import load_image
 from kosmos_jax.scoring.drawing import overlay, write_png
 from kosmos_jax.workdir.export import export_pretrained
 from kosmos_jax.workdir.run import open_run
+from user_commands import run_module, train_tiny
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
 # one worker: the tests share one trained run, which each worker would otherwise train again
 pytestmark = pytest.mark.xdist_group("predict")
-
-
-def run_module(*args) -> subprocess.CompletedProcess:
-    """`python -m ARGS` as a user runs it, on one CPU device."""
-    env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
-    env.pop("XLA_FLAGS", None)  # conftest's eight fake devices: only slower to compile for
-    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=REPO, env=env, capture_output=True, text=True,
-                          timeout=600)
 
 
 def one_device():
@@ -50,12 +38,7 @@ def one_device():
 @pytest.fixture(scope="session")
 def workdir(tmp_path_factory):
     """A tiny run of two steps, written by the trainer."""
-    workdir, root = tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets")
-    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
-                      f"--config.data.root={root}", "--config.train.steps=2", "--config.train.checkpoint_every=2",
-                      "--config.optimizer.warmup_steps=1")
-    assert done.returncode == 0, done.stderr[-3000:]
-    return workdir
+    return train_tiny(tmp_path_factory.mktemp("run"), tmp_path_factory.mktemp("datasets"))
 
 
 @pytest.fixture(scope="module")

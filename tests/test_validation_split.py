@@ -4,9 +4,7 @@ separation checks, the identity left as it was at the default 0, the errors for 
 tiny run whose periodic evaluation reads it, evaluated with `--split=validation`."""
 
 import json
-import os
 import pathlib
-import subprocess
 import sys
 
 import numpy as np
@@ -20,8 +18,8 @@ from kosmos_jax.dataset import samples as sample_stage
 from kosmos_jax.dataset.build import BuildConfig, build, build_settings, main
 from kosmos_jax.dataset.checks import BuildCheckError, check_separation
 from kosmos_jax.dataset.tfds_builders import open_splits
+from user_commands import REPO, run_module, train_tiny
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="session")
@@ -237,21 +235,11 @@ def test_a_fold_record_carries_the_last_validation_figures_when_there_are_any(tm
 
 # -- the trainer and the evaluate command ------------------------------------------------------
 
-def run_module(*args) -> subprocess.CompletedProcess:
-    env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1")
-    env.pop("XLA_FLAGS", None)  # one CPU device
-    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=REPO, env=env, capture_output=True, text=True,
-                          timeout=600)
-
-
 @pytest.mark.slow
 def test_a_run_watches_validation_and_records_test_at_the_end(tmp_path_factory):
-    workdir, root = tmp_path_factory.mktemp("validation_run"), tmp_path_factory.mktemp("validation_datasets")
-    done = run_module("kosmos_jax.train", "--config=configs/kosmos_e.py:tiny", f"--workdir={workdir}",
-                      f"--config.data.root={root}", "--config.data.build.validation_fraction=0.25",
-                      "--config.train.steps=2", "--config.train.checkpoint_every=2", "--config.train.eval_every=1",
-                      "--config.train.grasp_eval_every=1", "--config.optimizer.warmup_steps=1")
-    assert done.returncode == 0, done.stderr[-3000:]
+    workdir = train_tiny(tmp_path_factory.mktemp("validation_run"), tmp_path_factory.mktemp("validation_datasets"),
+                         "--config.data.build.validation_fraction=0.25", "--config.train.eval_every=1",
+                         "--config.train.grasp_eval_every=1")
     evals = [(r["step"], r["split"], "grasp_accuracy" in r)
              for r in map(json.loads, (workdir / "metrics.jsonl").read_text().splitlines()) if "split" in r]
     assert evals == [(1, "validation", True), (2, "validation", True), (2, "test", True)]
