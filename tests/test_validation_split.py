@@ -21,7 +21,6 @@ from kosmos_jax.dataset.tfds_builders import open_splits
 from user_commands import REPO, run_module, train_tiny
 
 
-
 @pytest.fixture(scope="session")
 def validation_source(synthetic_15):
     return synthetic_15
