@@ -4,26 +4,28 @@
     python -m kosmos_jax.demo --config=configs/demo.py:tiny        # a laptop smoke run (tiny model, 24 photos)
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=   # baselines only
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_photos \
-        --config.init_from=                                        # the demo model from scratch
+        --config.init_from=                                        # the demo model from scratch (NON only)
+    python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_photos_finetune \
+        --config.init_from=results/pretrain/demo_photos1200 --config.out=demo_nonstart   # make demo before 2026-11-30
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 
 import ml_collections
 
-from kosmos_jax.experiments.spec import SHIPPED_START
+from kosmos_jax.experiments.spec import GROUNDING_START
 
 
 def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     tiny = arg == "tiny"
     config = ml_collections.ConfigDict()
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
-    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_photos_finetune"  # "": no training
+    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_grounded"  # "": no training
     config.steps = 0  # 0: the training config's own train.steps
     config.train_seed = -1  # -1: the training config's own train.seed; another seed wants its own config.out
     # a run's workdir or an exported folder to start from (relative to the repository root), given to the
-    # training config as its config.init_from; "": from scratch. The default is the committed start
-    # pretrained on 1,200 photos of seed 1000, none of them a demo test photo (results/pretrain/README.md)
-    config.init_from = "" if tiny else SHIPPED_START
+    # training config as its config.init_from; "": from scratch. The default is the committed grounding start,
+    # pretrained on scenes made on the fly from seeds no demo test or validation set uses (results/pretrain/README.md)
+    config.init_from = "" if tiny else GROUNDING_START
     config.photos = 24 if tiny else 60  # synthetic photos of the no-learning table (object-wise needs >= 5 objects)
     config.seed = 0
     # the trained model on scenes it never saw (another seed): NON on each, multi-object kinds on mosaics

@@ -49,3 +49,15 @@ def test_demo_photos_finetune_is_demo_photos_from_a_start_at_a_lower_learning_ra
         config.pop("variant"), config.pop("require_init"), config["optimizer"].pop("peak_lr")
         config["model"].pop("value_token_code")
     assert tune == photos
+
+
+def test_demo_grounded_is_the_fine_tune_with_the_instruction_reading_connector_on_mosaics_too(kosmos_e):
+    tune, grounded = kosmos_e.get_config("demo_photos_finetune").to_dict(), kosmos_e.get_config("demo_grounded").to_dict()
+    assert grounded["require_init"] and grounded["model"]["connector_instruction"]
+    assert (grounded["data"]["build"]["kinds"], grounded["data"]["build"]["max_length"]) == ("non,multi", 128)
+    assert grounded["train"]["steps"] == grounded["train"]["eval_every"] == tune["train"]["steps"] // 2
+    for config in (tune, grounded):
+        config.pop("variant"), config["model"].pop("connector_instruction")
+        config["data"]["build"].pop("kinds"), config["data"]["build"].pop("max_length")
+        config["train"].pop("steps"), config["train"].pop("eval_every")
+    assert grounded == tune

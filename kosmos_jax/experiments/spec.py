@@ -43,6 +43,9 @@ KOSMOS_TOKENIZER = "sentencepiece.bpe.model"  # the tokenizer file of a KOSMOS-2
 # the committed pretrained start that make demo and the pretrained arms fine-tune (results/pretrain/README.md),
 # relative to the repository root, where the demo and the runner are started
 SHIPPED_START = "results/pretrain/demo_photos1200"
+# the committed grounding start that make demo fine-tunes (configs/kosmos_e.py:demo_grounded): pretrained on
+# scenes made on the fly, its connector reads the instruction (results/pretrain/README.md)
+GROUNDING_START = "results/pretrain/grounding6000"
 
 
 class ExperimentError(ValueError):

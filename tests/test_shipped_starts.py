@@ -1,0 +1,47 @@
+"""The committed pretrained starts (results/pretrain/) read alone and point at the object in real Cornell
+photos they never saw: `kosmos-grasp predict --pretrained=FOLDER` needs no other flag.
+
+"On the object" is judged by the photo's own annotation: the answered centre lies inside the convex
+hull of the corners of its positive rectangles (shapely, from the cpos.txt corners as written). The
+image centre (320, 240) is inside that hull in 3 of these 21 photos."""
+
+import json
+
+import numpy as np
+import pytest
+import shapely
+
+from kosmos_jax.experiments.spec import GROUNDING_START, SHIPPED_START
+from kosmos_jax.predict.predictor import GraspPredictor
+from kosmos_jax.sources import cornell
+from tests.user_commands import REPO, run_module
+
+STARTS = (SHIPPED_START, GROUNDING_START)
+EVERY = 5  # every fifth photo: 21 of the 101
+
+
+def object_hull(files: cornell.CornellFiles) -> shapely.Geometry:
+    corners = cornell.parse_corners(files.positives.read_text())
+    return shapely.MultiPoint(corners[~np.isnan(corners).any(axis=(1, 2))].reshape(-1, 2)).convex_hull
+
+
+@pytest.fixture(scope="session", params=STARTS)
+def shipped(request):
+    return request.param, GraspPredictor.from_pretrained(REPO / request.param)
+
+
+def test_a_shipped_start_answers_most_real_cornell_photos_with_a_centre_on_the_object(shipped, cornell_root):
+    _, predictor = shipped
+    photos = cornell.find_photos(cornell_root)[::EVERY]
+    on_object = [object_hull(files).contains(shapely.Point(grasp.x, grasp.y)) for files, grasp in
+                 zip(photos, predictor.predict_batch([cornell.read_rgb(files.rgb) for files in photos]))]
+    assert sum(on_object) >= 0.75 * len(photos), f"{sum(on_object)} of {len(photos)} centres on the object"
+
+
+def test_the_predict_command_reads_a_shipped_start_alone_and_answers_as_the_library_does(shipped, cornell_root):
+    start, predictor = shipped
+    photo = cornell.find_photos(cornell_root)[0].rgb
+    done = run_module("kosmos_jax.predict", f"--pretrained={start}", f"--image={photo}", "--json")
+    assert done.returncode == 0, done.stderr[-2000:]
+    printed = json.loads(done.stdout.strip().splitlines()[-1])
+    assert printed["answer"] == predictor.predict(cornell.read_rgb(photo)).answer
