@@ -40,6 +40,7 @@ from kosmos_jax.metrics import BACKENDS
 from kosmos_jax.scoring import fold_scores
 from kosmos_jax.scoring.no_learning import PREDICTORS
 from kosmos_jax.scoring.cornell_examples import cornell_examples
+from kosmos_jax.train.trainer import RunMismatchError
 from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -96,7 +97,10 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     train_config.data.root = str(out / "datasets")
     workdir = out / "run"
     started = time.perf_counter()
-    summary = runner.default_train(train_config, workdir)
+    try:
+        summary = runner.default_train(train_config, workdir)
+    except RunMismatchError as error:  # e.g. the run of an older make demo's recipe
+        raise SystemExit(f"error: {error} (for the demo: remove {out}, or give --config.out=ANOTHER_FOLDER)") from None
     if not summary["finished"]:
         raise SystemExit(f"training stopped at step {summary['step']}: run `make demo` again to resume")
     results = runner.evaluate_run(workdir, summary["step"])

@@ -102,6 +102,14 @@ def test_a_tiny_run_lowers_the_loss_and_logs_everything(reference, dataset_dir):
     assert "is finished" in again.stdout
 
 
+def test_a_finished_run_of_another_model_or_seed_is_refused_not_reused(reference, dataset_dir):
+    assert "is finished" in train(reference, dataset_dir, f"--config.train.steps={STEPS // 2}").stdout
+    for change, named in (("--config.train.seed=5", "train.seed=0 (this config: 5)"),
+                          ("--config.model.connector_grid_code=2.0", "model.connector_grid_code=")):
+        refused = train(reference, dataset_dir, f"--config.train.steps={STEPS}", change, expect=1)
+        assert f"holds a finished run of another config: {named}" in refused.stderr, refused.stderr[-2000:]
+
+
 @pytest.mark.slow  # 91 to 103 s on 2 cores (make test's --durations, 2026-11-25): make test-slow
 def test_sigterm_then_kill_9_resume_with_bit_identical_losses(reference, dataset_dir, tmp_path):
     workdir = tmp_path / "interrupted"

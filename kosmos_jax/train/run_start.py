@@ -101,7 +101,7 @@ def start_params(config, model_config, mesh):
 
 
 def _difference(stored, wanted) -> str:
-    stored_dict, wanted_dict = _flat(stored.to_hf_dict()), _flat(wanted.to_hf_dict())
+    stored_dict, wanted_dict = flat(stored.to_hf_dict()), flat(wanted.to_hf_dict())
     for name in EXTENSION_FIELDS:
         stored_dict[name], wanted_dict[name] = getattr(stored, name), getattr(wanted, name)
     differ = [f"{key} {stored_dict.get(key)} there, {wanted_dict.get(key)} here"
@@ -109,11 +109,11 @@ def _difference(stored, wanted) -> str:
     return "; ".join(differ[:4])
 
 
-def _flat(tree: dict, prefix: str = "") -> dict:
+def flat(tree: dict, prefix: str = "") -> dict:
     out = {}
     for key, value in tree.items():
         if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
+            out.update(flat(value, f"{prefix}{key}."))
         else:
             out[f"{prefix}{key}"] = value
     return out

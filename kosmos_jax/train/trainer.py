@@ -14,6 +14,7 @@ below) or "baseline" (GR-ConvNet / GG-CNN2, train/baseline_task.py, configs/base
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import pathlib
@@ -138,6 +139,29 @@ def check_same_run(stored: dict, current: dict, workdir) -> None:
     if stored_seed != seed and stored_seed is not None:
         raise RunMismatchError(f"{workdir} holds a run of train.seed={stored_seed}, not {seed}; "
                                "resume it with its own seed or use a new --workdir")
+
+
+# Config fields that are paths on one machine, not what a run is
+PATHS = ("data.root", "data.dir", "data.build.tokenizer")
+
+
+def check_finished_run(stored_config: dict, config, workdir) -> None:
+    """A finished run is found, not rebuilt, so its dataset and model cannot be compared as a resume
+    compares them: its stored config's data, model and seed must be this config's (fields that one of
+    them lacks, added since, are not compared; nor those this config leaves to the run, None, such as the
+    tokenizer a start brings; nor the data's settings when config.data.dir names a build)."""
+    if run_start.is_start(config.init_from):
+        config = copy.deepcopy(config)
+        run_start.use_run_tokenizer(config)  # as the run's own task did before it stored its config
+    stored, current = run_start.flat(stored_config), run_start.flat(json.loads(config.to_json_best_effort()))
+    parts = ("model",) if config.data.get("dir") else ("data", "model")
+    compared = [key for key in sorted(stored.keys() & current.keys())
+                if (key.split(".")[0] in parts or key == "train.seed") and key not in PATHS]
+    differing = [key for key in compared if current[key] is not None and stored[key] != current[key]]
+    if differing:
+        shown = ", ".join(f"{key}={stored[key]!r} (this config: {current[key]!r})" for key in differing[:3])
+        raise RunMismatchError(f"{workdir} holds a finished run of another config: {shown}"
+                               f"{' and more' if len(differing) > 3 else ''}; use a new --workdir")
 
 
 def evaluate(eval_step, params, split, config, sharding) -> dict:
@@ -283,7 +307,9 @@ def train(config, workdir) -> dict:
     checkpoints = Checkpoints(workdir, keep=config.train.keep_checkpoints)
     latest = checkpoints.latest_step()
     if latest is not None and latest >= steps:
+        stored = checkpoints.run_info(latest)
         checkpoints.close()
+        check_finished_run(stored.get("config", {}), config, workdir)
         if primary:
             print(f"the run in {workdir} is finished: its newest checkpoint is step {latest} "
                   f"(train.steps={steps}); nothing to do", flush=True)
