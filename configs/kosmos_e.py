@@ -16,8 +16,8 @@ Variants:
          (results/pretrain/README.md, "The fine-tune's learning rate"); the experiments' pretrained arms
   demo_grounded  what `make demo` trains: demo_photos_finetune from a grounding start (the committed
          results/pretrain/grounding6000: its connector reads the instruction) on NON and the six
-         multi-object kinds on mosaics (results/pretrain/README.md, "make demo's fine-tune from the
-         grounding start")
+         multi-object kinds on mosaics for 400 steps (results/pretrain/README.md, "The grounding start
+         shipped")
   demo_gpu  demo on four times the photos for three times the steps: minutes on a GPU, about an hour on 2
          cores (53 minutes, results/pretrain/README.md)
          (results/scale_study: 48.35 on validation against 33.33 on demo's 300 photos, same steps)

@@ -5,7 +5,8 @@
 1. Trains `config.train_config` (configs/kosmos_e.py:demo_grounded: the demo's small model fine-tuned
    on the project's synthetic scenes, NON and mosaics, from the committed grounding start, config.init_from) in
    OUT/run, an ordinary workdir (`python -m kosmos_jax.evaluate --workdir=OUT/run` and the
-   notebooks open it); a finished run is reused, a stopped one resumed.
+   notebooks open it); a finished run of the same config is reused (one of another is refused), a
+   stopped one resumed.
    With config.init_from (a run's workdir or an exported folder) it fine-tunes from that start.
    It decodes the held-out fold's answers and scores them (evaluate's code), and scores the
    image-centre and ground-truth-mean predictors on exactly the same test instructions. Then the

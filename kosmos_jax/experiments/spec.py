@@ -40,7 +40,7 @@ FOLD_FIELDS = {  # task -> (protocol, scheme, fold, folds) fields of its trainin
     "baseline": ("data.protocol", "data.scheme", "data.fold", "data.folds"),
 }
 KOSMOS_TOKENIZER = "sentencepiece.bpe.model"  # the tokenizer file of a KOSMOS-2 folder
-# the committed pretrained start that make demo and the pretrained arms fine-tune (results/pretrain/README.md),
+# the committed pretrained start that the pretrained arms (and make demo until 2026-11-30) fine-tune (results/pretrain/README.md),
 # relative to the repository root, where the demo and the runner are started
 SHIPPED_START = "results/pretrain/demo_photos1200"
 # the committed grounding start that make demo fine-tunes (configs/kosmos_e.py:demo_grounded): pretrained on
