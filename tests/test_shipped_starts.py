@@ -45,3 +45,19 @@ def test_the_predict_command_reads_a_shipped_start_alone_and_answers_as_the_libr
     assert done.returncode == 0, done.stderr[-2000:]
     printed = json.loads(done.stdout.strip().splitlines()[-1])
     assert printed["answer"] == predictor.predict(cornell.read_rgb(photo)).answer
+
+
+@pytest.mark.parametrize("image, instruction, said", [
+    ("notes.png", None, "notes.png: not an image"),
+    ("missing.png", None, "missing.png: no such image file"),
+    ("photo", " ", "error: the instruction is empty"),
+])
+def test_the_predict_command_answers_bad_input_to_a_shipped_start_with_one_line(image, instruction, said,
+                                                                                 cornell_root, tmp_path):
+    (tmp_path / "notes.png").write_text("not a picture")
+    path = cornell.find_photos(cornell_root)[0].rgb if image == "photo" else tmp_path / image
+    asked = [] if instruction is None else [f"--instruction={instruction}"]
+    done = run_module("kosmos_jax.predict", f"--pretrained={GROUNDING_START}", f"--image={path}", *asked)
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error: ")]
+    assert done.returncode == 1 and len(errors) == 1 and said in errors[0], done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
