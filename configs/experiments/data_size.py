@@ -18,7 +18,7 @@ crops, value tokens, the pointing connector), whose answers do depend on the pho
 1,000 photos of 16 augmentations, and 4, 8 and 16 augmentations of 300 photos, 800 steps each (the
 demo's own schedule; 300 photos of 16 is the demo), honest protocol, image- and object-wise fold 0
 by default. About 11 to 15 minutes an arm on 2 cores.
-cpu_pretrained: the "photos" series with `make demo`'s recipe, the committed start
+cpu_pretrained: the "photos" series with `make demo`'s recipe until 2026-11-30, the committed start
 results/pretrain/demo_photos1200 (pretrained on 1,200 photos of seed 1000, none of them a test photo)
 fine-tuned for 800 steps (configs/kosmos_e.py:demo_photos_finetune) on 150, 300, 600 and 1,200 photos
 of seed 0, 4 augmentations each (1,200 is the demo's own data); honest protocol, image-wise folds 0, 1

@@ -20,7 +20,7 @@ and test views as cpu, so its rows sit beside cpu's baselines (results/table1_de
 on 2 cores, 2026-11-25).
 cpu_pretrained: cpu_demo's folds and protocol, KOSMOS-E fine-tuned from the committed start
 (configs/kosmos_e.py:demo_photos_finetune from results/pretrain/demo_photos1200: pretrained on synthetic
-scenes only), 800 steps at batch 32, as `make demo` fine-tunes it.
+scenes only), 800 steps at batch 32, as `make demo` fine-tuned it until 2026-11-30.
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines
 with a longer schedule, every fold.
 
