@@ -41,7 +41,7 @@ from kosmos_jax.metrics import BACKENDS
 from kosmos_jax.scoring import fold_scores
 from kosmos_jax.scoring.no_learning import PREDICTORS
 from kosmos_jax.scoring.cornell_examples import cornell_examples
-from kosmos_jax.train.trainer import RunMismatchError
+from kosmos_jax.workdir.files import RunMismatchError
 from kosmos_jax.workdir.run import open_run
 
 REPO = pathlib.Path(__file__).resolve().parents[1]

@@ -21,13 +21,13 @@ STEPS = 4
 COMMON = (f"--config.optimizer.decay_steps={STEPS}",)  # runs of other lengths share every learning rate
 
 
-def train(workdir, data_root, *overrides) -> subprocess.CompletedProcess:
+def train(workdir, data_root, *overrides, expect: int = 0) -> subprocess.CompletedProcess:
     command = [sys.executable, "-m", "kosmos_jax.train", "--config=configs/baselines.py:tiny", f"--workdir={workdir}",
                f"--config.data.root={data_root}", *COMMON, *overrides]
     env = dict(os.environ, GLIBC_TUNABLES="glibc.malloc.hugetlb=1",
                XLA_FLAGS="--xla_force_host_platform_device_count=1")
     done = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.returncode == expect, done.stderr[-3000:]
     return done
 
 
@@ -66,6 +66,15 @@ def test_resumed_baseline_continues_with_its_batchnorm_statistics(runs):
     assert test["resumed"]["grasp_accuracy"] == test["whole"]["grasp_accuracy"]
     with Checkpoints(resumed) as checkpoints:
         assert 2 in checkpoints.all_steps() and checkpoints.latest_step() == STEPS
+
+
+@pytest.mark.slow  # shares the runs fixture of the test above
+def test_a_finished_baseline_run_is_found_again_and_one_of_another_seed_refused(runs):
+    whole, _, _ = runs
+    data_root = whole.parent / "datasets"
+    assert "is finished" in train(whole, data_root, f"--config.train.steps={STEPS}").stdout
+    refused = train(whole, data_root, f"--config.train.steps={STEPS}", "--config.train.seed=7", expect=1)
+    assert "holds a finished run of another config: train.seed=" in refused.stderr, refused.stderr[-2000:]
 
 
 

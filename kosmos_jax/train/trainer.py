@@ -46,15 +46,11 @@ from kosmos_jax.train.state import abstract_train_state, init_train_state
 from kosmos_jax.train.step import BATCH_KEYS, make_eval_step, make_train_step, train_keys
 from kosmos_jax.train.task import Task, check_batch_layout, watched_record
 from kosmos_jax.workdir.checkpoints import Checkpoints
-from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE
+from kosmos_jax.workdir.files import RUN_FILE, TOKENIZER_FILE, RunMismatchError
 from kosmos_jax.workdir.model import model_config
 
 class NonFiniteError(FloatingPointError):
     """A training step gave a loss or gradients that are not finite."""
-
-
-class RunMismatchError(ValueError):
-    """The workdir holds a run of another model or dataset."""
 
 
 def initial_params(config, model_cfg: Kosmos2Config, tokenizer, mesh, description: dict):
@@ -147,17 +143,17 @@ PATHS = ("data.root", "data.dir", "data.build.tokenizer")
 
 def check_finished_run(stored_config: dict, config, workdir) -> None:
     """A finished run is found, not rebuilt, so its dataset and model cannot be compared as a resume
-    compares them: its stored config's data, model and seed must be this config's (fields that one of
-    them lacks, added since, are not compared; nor those this config leaves to the run, None, such as the
-    tokenizer a start brings; nor the data's settings when config.data.dir names a build)."""
-    if run_start.is_start(config.init_from):
+    compares them: its stored config's data, model and seed must be this config's, once a start has set
+    the tokenizer as the run's own task did (fields that one of them lacks, added since, are not compared;
+    nor the data's settings when config.data.dir names a build)."""
+    if run_start.is_start(config.get("init_from", "")):  # a baseline's config has no start
         config = copy.deepcopy(config)
-        run_start.use_run_tokenizer(config)  # as the run's own task did before it stored its config
+        run_start.use_run_tokenizer(config)
     stored, current = run_start.flat(stored_config), run_start.flat(json.loads(config.to_json_best_effort()))
     parts = ("model",) if config.data.get("dir") else ("data", "model")
     compared = [key for key in sorted(stored.keys() & current.keys())
                 if (key.split(".")[0] in parts or key == "train.seed") and key not in PATHS]
-    differing = [key for key in compared if current[key] is not None and stored[key] != current[key]]
+    differing = [key for key in compared if stored[key] != current[key]]
     if differing:
         shown = ", ".join(f"{key}={stored[key]!r} (this config: {current[key]!r})" for key in differing[:3])
         raise RunMismatchError(f"{workdir} holds a finished run of another config: {shown}"

@@ -13,6 +13,10 @@ class RunError(FileNotFoundError):
     """The workdir lacks what a reader needs."""
 
 
+class RunMismatchError(ValueError):
+    """The workdir holds a run of another model or dataset than the config asks for."""
+
+
 def read_description(workdir) -> dict:
     """The run.json a trainer wrote in `workdir`."""
     workdir = pathlib.Path(workdir)
