@@ -54,17 +54,19 @@ def test_the_summary_counts_unparsed_answers_as_misses_and_leaves_them_out_of_th
 
 def test_mosaic_answers_are_scored_by_the_quadrant_they_pick():
     half = CONFIG.image_size // 2  # 112: the 224 px mosaic's tiles meet there
-    mosaic = [dict(location("x_10,y_20", "x_100,y_100"), scene="multi", kind="multi-name"),  # target's tile, far off: a hit
+    mosaic = [dict(location("x_10,y_20", "x_100,y_100"), scene="multi", kind="multi-name",
+                   correct=False),  # target's tile, far off: a hit, scored wrong
               dict(location("x_10,y_20", f"x_{half},y_20"), scene="multi", kind="multi-name"),  # the tile to the right
               dict(location(f"x_{half + 5},y_{half + 5}", "x_220,y_220"), scene="multi",
-                   kind="multi-position"),  # bottom right both
+                   kind="multi-position", correct=True),  # bottom right both, scored right
               dict(location("x_10,y_20", "nonsense"), scene="multi", kind="multi-position"),  # unparsed: a miss
               dict(angle("a_0", "a_0"), scene="multi", kind="multi-name")]  # states no centre: not counted
     single = [dict(location("x_10,y_20", "x_200,y_200"), scene="single")]
     summary = errors_lib.error_summary(mosaic + single, CONFIG)
-    assert summary["by_scene"]["multi"]["same_quadrant"] == {"answers": 4, "share": 0.5}
-    assert summary["by_scene"]["multi"]["same_quadrant_by_kind"] == {"multi-name": {"answers": 2, "share": 0.5},
-                                                                     "multi-position": {"answers": 2, "share": 0.5}}
+    assert summary["by_scene"]["multi"]["same_quadrant"] == {"answers": 4, "share": 0.5, "correct_share": 0.5}
+    assert summary["by_scene"]["multi"]["same_quadrant_by_kind"] == {
+        "multi-name": {"answers": 2, "share": 0.5, "correct_share": 0.0},
+        "multi-position": {"answers": 2, "share": 0.5, "correct_share": 1.0}}
     assert "same_quadrant" not in summary["by_scene"]["single"]
     assert summary["by_scene"]["single"]["centre_px"]["answers"] == 1 and summary["examples"] == 6
     assert [errors_lib.quadrant(c, 224) for c in ((0, 0), (112, 0), (0, 112), (111.9, 223))] == [0, 1, 2, 2]

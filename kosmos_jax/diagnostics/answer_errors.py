@@ -11,7 +11,8 @@ not parse counts as a miss at every threshold and is left out of the median.
 
 Split by scene (single photos, four-photo mosaics), and for mosaics the share of centre answers that
 fall in the target's quadrant (`same_quadrant`): whether the model picked the named photo at all
-(a quarter by chance), apart from how close it came within it.
+(a quarter by chance), apart from how close it came within it (of those answers, the share the
+rectangle metric scored right).
 """
 
 from __future__ import annotations
@@ -61,16 +62,23 @@ def quadrant(centre, side: float) -> int:
 
 
 def same_quadrant(rows: list[dict], config: FormatConfig) -> dict | None:
-    """Of the mosaic rows that state a centre: how many answers parse to one in the target's quadrant."""
-    hits, stated = 0, 0
+    """Of the mosaic rows that state a centre: how many answers parse to one in the target's quadrant
+    (`share`), and of those how many the rectangle metric scored right (`correct_share`: the grasp within
+    the named photo, apart from finding it)."""
+    hits, right, stated = 0, 0, 0
     for row in rows:
         target = parse_target(row["target_text"], row["part"], config).grasp
         if np.isnan(target[:2]).any():
             continue
         stated += 1
         parsed = parse_target(row["answer"], row["part"], config)
-        hits += bool(parsed.ok) and quadrant(parsed.grasp, config.image_size) == quadrant(target, config.image_size)
-    return {"answers": stated, "share": round(hits / stated, 4)} if stated else None
+        hit = bool(parsed.ok) and quadrant(parsed.grasp, config.image_size) == quadrant(target, config.image_size)
+        hits += hit
+        right += hit and bool(row.get("correct"))
+    if not stated:
+        return None
+    return {"answers": stated, "share": round(hits / stated, 4),
+            "correct_share": round(right / hits, 4) if hits else None}
 
 
 def error_summary(rows: list[dict], config: FormatConfig) -> dict:
@@ -144,7 +152,8 @@ def errors_command(args) -> None:
             print(f"  {part}: {figures['answers']} answers ({figures['unparsed']} unparsed), median {figures['median']}, within: {within}")
     mosaics = summary["by_scene"].get("multi", {}).get("same_quadrant")
     if mosaics:
-        print(f"  mosaics: {mosaics['share']:.0%} of {mosaics['answers']} centres in the target's quadrant (chance 25%)")
+        right = "" if mosaics["correct_share"] is None else f", {mosaics['correct_share']:.0%} of those right"
+        print(f"  mosaics: {mosaics['share']:.0%} of {mosaics['answers']} centres in the target's quadrant (chance 25%){right}")
 
 
 if __name__ == "__main__":
