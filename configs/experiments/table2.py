@@ -44,6 +44,7 @@ MIXES = ("non", "single", "multi", "all")
 CPU_STEPS = 200
 VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_grounded", "paper")
 STREAM_START = "runs/pretrain/stream_wide1500"  # made by the command of the docstring
+STARTS = {"cpu_pretrained": STREAM_START, "cpu_grounded": GROUNDING_START}
 
 
 def get_config(arg: str | None = None):
@@ -59,14 +60,13 @@ def get_config(arg: str | None = None):
         arms = {mix: arm("configs/kosmos_e.py:demo", {"data.build.kinds": mix, "data.build.augmentations": 4,
                                                       "data.build.max_length": 128}) for mix in MIXES}
         return experiment("table2", arms, schemes="image", protocols="honest", folds="0")
-    if variant in ("cpu_pretrained", "cpu_grounded"):
+    if variant in STARTS:
         # the start's model (its connector reads the instruction) and its tokenizer, which knows every kind's words;
         # make demo's fine-tune rate, chosen on validation for the shipped start
         peak_lr = load_config("configs/kosmos_e.py:demo_photos_finetune").optimizer.peak_lr
         arms = {mix: arm("configs/kosmos_e.py:demo_finetune", {
             "data.build.kinds": mix, "data.build.augmentations": 4, "data.build.max_length": 128,
-            "model.connector_instruction": True, "optimizer.peak_lr": peak_lr,
-            "init_from": STREAM_START if variant == "cpu_pretrained" else GROUNDING_START})
+            "model.connector_instruction": True, "optimizer.peak_lr": peak_lr, "init_from": STARTS[variant]})
             for mix in MIXES}
         return experiment("table2", arms, schemes="image", protocols="honest", folds="0")
     arms = {mix: arm("configs/kosmos_e.py:paper", {"data.build.kinds": mix}) for mix in MIXES}
