@@ -224,7 +224,7 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         # the grounding start's connector reads the prompt's words; mosaic instructions run to 120 tokens
         config.model.connector_instruction = True
         config.data.build.update(kinds="non,multi", max_length=128)
-        # 400 steps: 20.37 on validation mosaics against 20.99 at 800, in half of make demo's 15 minutes
+        # 400 steps: 20.37 on validation mosaics against 20.99 at 800, at half the training time
         config.train.update(steps=400, eval_every=400)
     elif variant == "demo_gpu":
         config = get_config("demo")
