@@ -504,7 +504,7 @@ def test_table2_from_a_start_that_knows_every_kind(variant):
     demo = spec.load_config("configs/experiments/table2.py:cpu_demo")
     config = spec.load_config(f"configs/experiments/table2.py:{variant}")
     tune = spec.load_config("configs/kosmos_e.py:demo_photos_finetune")
-    start = {"cpu_pretrained": "runs/pretrain/stream_wide1500", "cpu_grounded": spec.GROUNDING_START}[variant]
+    start = {"cpu_pretrained": "runs/pretrain/stream_wide1500", "cpu_grounded": spec.GROUNDING6000_START}[variant]
     start_model = (weights.read_config(spec.REPO / start) if variant == "cpu_grounded" else
                    model_config(spec.load_config("configs/pretrain.py:demo_stream_instruct").model, 1000))
     assert spec.arm_names(config) == spec.arm_names(demo) and config.protocols == "honest"

@@ -38,13 +38,13 @@ tell them from today's recipe, so a rerun must not carry them in (today's recipe
 results/table2_pretrained/scratch_folds).
 """
 
-from kosmos_jax.experiments.spec import GROUNDING_START, arm, experiment, load_config
+from kosmos_jax.experiments.spec import GROUNDING6000_START, arm, experiment, load_config
 
 MIXES = ("non", "single", "multi", "all")
 CPU_STEPS = 200
 VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_grounded", "paper")
 STREAM_START = "runs/pretrain/stream_wide1500"  # made by the command of the docstring
-STARTS = {"cpu_pretrained": STREAM_START, "cpu_grounded": GROUNDING_START}
+STARTS = {"cpu_pretrained": STREAM_START, "cpu_grounded": GROUNDING6000_START}  # the starts their records came from
 
 
 def get_config(arg: str | None = None):
