@@ -3,7 +3,7 @@ wrote (two steps), its checkpoint decoded, parsed and scored by `python -m kosmo
 unconstrained parse failures counted as the parser counts them; constrained answers of a random
 model always parse; the centre and angle answers of one instruction combined into one grasp; the
 targets scored as answers (the target ceiling) and the distinct answers; the errors a user meets;
-a Cornell-format folder of synthetic photos."""
+a Cornell-format folder of synthetic photos, scored from the run and from its exported folder alike."""
 
 import json
 import shutil
@@ -24,6 +24,7 @@ from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.scoring.tally import angle_errors, angle_fit, distinct, markdown, successes
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
+from kosmos_jax.workdir.export import export_pretrained
 from kosmos_jax.workdir.run import open_run
 from user_commands import run_module, train_tiny
 
@@ -432,3 +433,43 @@ def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workd
     assert "flag --value_window=-1: -1 is not a non-negative integer" in capsys.readouterr().err
     assert main(["--workdir", str(values_workdir), "--angle-window=128"]) == 2
     assert "flag --angle_window=128: 128 is not an integer in the range [0, 127]" in capsys.readouterr().err
+
+
+def test_an_exported_folder_scores_a_cornell_folder_as_its_run_does(workdir, tmp_path, capsys):
+    folder = tmp_path / "photos"
+    scenes.write_dataset(folder, photos=3, seed=12)
+    exported = tmp_path / "exported"
+    export_pretrained(workdir, exported)
+    code, out, err = run_cli(capsys, f"--workdir={workdir}", f"--cornell={folder}", "--json")
+    assert code == 0, err[-3000:]
+    from_run = json.loads(out)
+    code, out, err = run_cli(capsys, f"--pretrained={exported}", f"--cornell={folder}", f"--out={tmp_path / 'scores'}",
+                             "--json")
+    assert code == 0, err[-3000:]
+    from_folder = json.loads(out)
+    assert from_folder["pretrained"] == str(exported.resolve()) and from_folder["step"] == from_run["step"] == 2
+    for key in ("accuracy", "by_kind", "by_scene", "distinct", "target_ceiling", "constrained", "unconstrained",
+                "instructions", "photos", "value_window", "angle_window"):
+        assert from_folder[key] == from_run[key], key
+    answers = lambda path: [json.loads(line) for line in path.read_text().splitlines()]
+    assert answers(tmp_path / "scores" / "cornell-photos" / "answers.jsonl") == answers(
+        workdir / "eval" / "2" / "cornell-photos" / "answers.jsonl")
+    assert sorted(p.name for p in exported.iterdir()) == ["config.json", "kosmos_e.json", "model.safetensors",
+                                                         "tokenizer.model"]  # nothing written into the folder
+
+
+def test_an_exported_folder_is_refused_what_only_a_run_has_in_one_line(workdir, tmp_path, capsys):
+    exported = tmp_path / "exported"
+    export_pretrained(workdir, exported)
+    photos = f"--cornell={tmp_path}"
+    for args, says in (([f"--pretrained={exported}"], "give --cornell=PATH"),
+                       ([f"--pretrained={exported}", photos, "--step=2"], "--step belongs to --workdir"),
+                       ([f"--pretrained={exported}", photos, "--split=validation"], "--split belongs to --workdir"),
+                       ([f"--pretrained={exported}", photos, f"--out={exported / 'scores'}"], "lies inside"),
+                       ([f"--pretrained={tmp_path / 'nowhere'}", photos], "no such folder"),
+                       ([f"--workdir={workdir}", f"--out={tmp_path / 'scores'}"], "--out goes with --pretrained")):
+        code, out, err = run_cli(capsys, *args)
+        assert code == 1 and not out and says in err, (args, err)
+        assert len(err.strip().splitlines()) == 1 and err.startswith("error: ")
+    assert sorted(p.name for p in exported.iterdir()) == ["config.json", "kosmos_e.json", "model.safetensors",
+                                                         "tokenizer.model"]

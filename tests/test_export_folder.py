@@ -1,7 +1,7 @@
 """A run exported to a self-contained folder (issue 22): a grid-code model written with the extended
 config.json and read back the same; `python -m kosmos_jax.workdir.export` on a tiny trained run with
 a grid code; `predict --pretrained=FOLDER` with no other flag answers as `--workdir=RUN`; training
-starts from the folder; a folder without kosmos_e.json, and bad export input, give one clear error."""
+starts from the folder, and its own export names that folder and its run; a folder without kosmos_e.json, and bad export input, give one clear error."""
 
 import dataclasses
 import json
@@ -96,6 +96,7 @@ def test_the_export_holds_the_extended_config_the_tokenizer_and_the_runs_text_fo
     assert (described["value_window"], described["angle_window"]) == (run.config.decode.value_window,
                                                                       run.config.decode.angle_window)
     assert (exported / "tokenizer.model").read_bytes() == (grid_run / "tokenizer.model").read_bytes()
+    assert described["started_from"] == []  # trained from scratch
 
 
 @pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
@@ -136,3 +137,9 @@ def test_training_starts_from_the_folder(exported, tmp_path):
                f"--config.init_from={exported}", f"--config.data.build.tokenizer={exported / 'tokenizer.model'}",
                "--config.data.build.tokenizer_scheme=native", steps=1)
     assert open_run(tmp_path / "run").steps() == [1]
+    # its own export names the folder it started from and that folder's run
+    again = tmp_path / "again"
+    done = run_module("kosmos_jax.workdir.export", f"--workdir={tmp_path / 'run'}", f"--out={again}")
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert json.loads((again / "kosmos_e.json").read_text())["started_from"] == [
+        {"folder": str(exported.resolve()), "step": 2, "workdir": json.loads((exported / "kosmos_e.json").read_text())["workdir"]}]

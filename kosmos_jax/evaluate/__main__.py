@@ -3,12 +3,15 @@
     python -m kosmos_jax.evaluate --workdir=runs/demo [--step=N] [--split=test] [--json]
         [--batch_size=16] [--max_examples=0] [--overlays=N]
     python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
+    python -m kosmos_jax.evaluate --pretrained=FOLDER --cornell=PATH [--kinds=non] [--out=DIR] [--json]
 
 Writes WORKDIR/eval/STEP/results.json, results.md and answers.jsonl (one line per example: both
 answers, whether they parse, its target text, whether its instruction's answers and its targets
 make a correct grasp); another split or a Cornell folder goes to eval/STEP/<split> or
 eval/STEP/cornell-<folder name>. --json prints results.json as one line on stdout. The split is
-scored under the run's protocol; a Cornell folder under the honest one. results.json holds:
+scored under the run's protocol; a Cornell folder under the honest one. --pretrained scores a folder
+exported from a run (workdir.export) on a Cornell folder alike, into OUT/cornell-<folder name>
+(default OUT: runs/evaluate/<the exported folder's name>; never inside the exported folder). results.json holds:
   accuracy           the constrained accuracy overall, in percent;
   constrained, unconstrained   each decoding's accuracy, correct, answers, parse failures;
   target_ceiling     the accuracy of the examples' own targets, read back from their stored tokens
@@ -43,6 +46,7 @@ from absl import flags
 
 from kosmos_jax import commands
 from kosmos_jax.evaluate.overlays import write_overlays
+from kosmos_jax.evaluate.pretrained_scores import evaluate_pretrained
 from kosmos_jax.evaluate.run_scores import evaluate, write
 from kosmos_jax.models.value_decoding import MAX_ANGLE_WINDOW
 from kosmos_jax.scoring.tally import markdown
@@ -52,6 +56,8 @@ from kosmos_jax.workdir.files import RunError
 def define_flags(flag_values: flags.FlagValues) -> None:
     define = commands.definer(flag_values)
     define("string", "workdir", None, "the training run's folder")
+    define("string", "pretrained", None, "a folder exported from a run (workdir.export) instead; needs --cornell")
+    define("string", "out", None, "with --pretrained: where the scores go (default runs/evaluate/<its name>)")
     define("integer", "step", None, "checkpoint step (default: the newest)")
     define("string", "split", "test", "split of the run's dataset")
     define("string", "cornell", None, "score every photo of this Cornell-format folder instead")
@@ -67,22 +73,46 @@ def define_flags(flag_values: flags.FlagValues) -> None:
     define("bool", "json", False, "print results.json as one line on stdout")
     define("integer", "overlays", 0, "N: draw N scored views of each instruction kind to "
            "eval/STEP/overlays/KIND.png (overlays.py)", lower_bound=0)
-    flags.mark_flag_as_required("workdir", flag_values=flag_values)
+    flags.register_multi_flags_validator(
+        ["workdir", "pretrained"], lambda given: (given["workdir"] is None) != (given["pretrained"] is None),
+        message="give --workdir=RUN or --pretrained=FOLDER (one of them)", flag_values=flag_values)
 
 
 def main(argv=None) -> int:
     return commands.run_command(define_flags, evaluate_command, argv, prog="python -m kosmos_jax.evaluate", doc=__doc__)
 
 
+def pretrained_misuse(args) -> str | None:
+    """What --pretrained cannot be given with, in one line; None when nothing."""
+    if args.cornell is None:
+        return "--pretrained scores a Cornell-format folder: give --cornell=PATH (an exported folder has no dataset)"
+    given = [name for name, value, unset in (("step", args.step, None), ("split", args.split, "test"),
+                                              ("overlays", args.overlays, 0)) if value != unset]
+    if given:
+        return f"--{given[0]} belongs to --workdir runs; an exported folder holds one step and no splits"
+    return None
+
+
 def evaluate_command(args) -> int:
+    if args.pretrained is None and args.out is not None:
+        print("error: --out goes with --pretrained; a run's scores go to WORKDIR/eval/STEP", file=sys.stderr)
+        return 1
+    if args.pretrained is not None and (misuse := pretrained_misuse(args)):
+        print(f"error: {misuse}", file=sys.stderr)
+        return 1
+    asked = dict(kinds=tuple(args.kinds), batch_size=args.batch_size, max_examples=args.max_examples,
+                   value_window=args.value_window, angle_window=args.angle_window)
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
-            results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split, cornell=args.cornell,
-                                             kinds=tuple(args.kinds), batch_size=args.batch_size,
-                                             max_examples=args.max_examples, value_window=args.value_window,
-                                             angle_window=args.angle_window)
-            write(results, rows, folder)
-            write_overlays(args.workdir, results, rows, folder, args.overlays)
+            if args.pretrained is not None:
+                results, rows, folder = evaluate_pretrained(args.pretrained, cornell=args.cornell, out=args.out,
+                                                            **asked)
+                write(results, rows, folder)
+            else:
+                results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split,
+                                                 cornell=args.cornell, **asked)
+                write(results, rows, folder)
+                write_overlays(args.workdir, results, rows, folder, args.overlays)
     except (RunError, FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1

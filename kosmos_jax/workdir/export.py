@@ -7,7 +7,8 @@
 
 Writes config.json and model.safetensors (models.weights.save_pretrained) from the parameters of
 one checkpoint (restored alone, on one device), the run's tokenizer.model, and kosmos_e.json (the
-run's text format, tokenizer scheme, protocol and grasp size: workdir.pretrained). A model whose
+run's text format, tokenizer scheme, protocol and grasp size, and the starts it was trained from:
+workdir.pretrained). A model whose
 connector adds a grid code is written with this project's extended config.json, which transformers
 refuses rather than compute another model; training starts from any such folder with
 --config.init_from=FOLDER.
@@ -32,7 +33,7 @@ from kosmos_jax.models.value_decoding import configured_windows
 from kosmos_jax.workdir.sizes import run_grasp_size
 from kosmos_jax.scoring.model_answers import fixed_streams
 from kosmos_jax.workdir.files import TOKENIZER_FILE
-from kosmos_jax.workdir.pretrained import folder_description, write_description
+from kosmos_jax.workdir.pretrained import folder_description, start_chain, write_description
 from kosmos_jax.workdir.run import open_run
 
 
@@ -50,7 +51,8 @@ def export_pretrained(workdir, folder, step: int | None = None, max_shard_bytes:
     shutil.copyfile(run.workdir / TOKENIZER_FILE, folder / TOKENIZER_FILE)
     write_description(folder, folder_description(
         dataclasses.asdict(run.format_config), run.tokenizer.scheme, run.tokenizer.numbers, run.protocol,
-        run_grasp_size(run), step, run.workdir.resolve(), **configured_windows(run.config)))
+        run_grasp_size(run), step, run.workdir.resolve(), **configured_windows(run.config),
+        started_from=start_chain(run.description.get("init"))))
     return step
 
 
