@@ -397,3 +397,31 @@ def test_samples_of_unknown_words_are_skipped_and_counted():
     views[2] = dataclasses.replace(views[2], words=ObjectWords(name="thing2"))
     with pytest.raises(MissingWordsError, match="'p2' has no 'colour' words"):
         list(split_samples(views, ("colour",), (), 0, "train"))
+
+
+def test_encoding_on_threads_writes_the_bytes_and_rows_of_one_thread(tmp_path, monkeypatch):
+    from kosmos_jax.dataset import images as image_tables
+
+    monkeypatch.setattr(image_tables, "PENDING_IMAGES", 3)  # the writer waits for the oldest often
+    rng = np.random.default_rng(5)
+    distinct = [rng.integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8) for _ in range(11)]
+    order = [0, 1, 1, 2, 0, 3, 4, 5, 6, 2, 7, 8, 9, 10, 10, 3]
+    tables = {}
+    for encoders in (1, 2):
+        folder = tmp_path / f"encoders{encoders}"
+        folder.mkdir()
+        writer = image_tables.ImageTableWriter(folder, "train", (SIZE, SIZE, 3), shard_images=4, encoders=encoders)
+        rows = []
+        for i in order:
+            given = distinct[i].copy()
+            rows.append(writer.index(given))
+            given[...] = 0  # the caller's array reused once the row is known: the stored image stays
+        tables[encoders] = (rows, writer.close(), folder)
+    (rows_1, description_1, folder_1), (rows_2, description_2, folder_2) = tables[1], tables[2]
+    assert rows_2 == rows_1 == [0, 1, 1, 2, 0, 3, 4, 5, 6, 2, 7, 8, 9, 10, 10, 3]
+    assert description_2 == description_1 and description_1["shard_lengths"] == [4, 4, 3]
+    for name in description_1["files"]:
+        assert (folder_2 / name).read_bytes() == (folder_1 / name).read_bytes()
+    table = image_tables.ImageTable(folder_2, description_2)
+    for i, row in zip(order, rows_2):
+        assert np.array_equal(table[row], distinct[i])

@@ -29,6 +29,9 @@ def test_downsample_is_cv2_area_resize_and_jits():
     expected = cv2.resize(image, (224, 224), interpolation=cv2.INTER_AREA)
     np.testing.assert_array_equal(mosaic.downsample_2x(image), expected)
     np.testing.assert_array_equal(np.asarray(jax.jit(mosaic.downsample_2x)(image)), expected)
+    # a batch of images takes numpy's arithmetic, not OpenCV: the same pixels
+    np.testing.assert_array_equal(mosaic.downsample_2x(np.stack([image, image[::-1]])),
+                                  np.stack([expected, cv2.resize(image[::-1], (224, 224), interpolation=cv2.INTER_AREA)]))
     tiles = [image[:224, :224], image[:224, 224:], image[224:, :224], image[224:, 224:]]
     np.testing.assert_array_equal(mosaic.mosaic_image(tiles), expected)
     jitted = jax.jit(lambda *t: mosaic.mosaic_image(t))(*[jax.numpy.asarray(t) for t in tiles])
