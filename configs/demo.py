@@ -9,6 +9,8 @@
         --config.init_from=results/pretrain/demo_photos1200 --config.out=demo_nonstart   # make demo before 2026-11-30
     python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding6000 \
         --config.out=demo_g6000                                    # make demo from 2026-11-30 to 2026-12-01
+    python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding10000 \
+        --config.out=demo_g10000                                   # make demo on 2026-12-01
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import shapely
 
-from kosmos_jax.experiments.spec import GROUNDING6000_START, GROUNDING_START, SHIPPED_START, load_config
+from kosmos_jax.experiments.spec import (GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START, SHIPPED_START,
+                                        load_config)
 from kosmos_jax.models import weights
 from kosmos_jax.predict.predictor import GraspPredictor
 from kosmos_jax.sources import cornell
@@ -19,7 +20,7 @@ from kosmos_jax.train.run_start import check_same_model
 from kosmos_jax.workdir.model import model_config
 from user_commands import REPO, run_module
 
-STARTS = (SHIPPED_START, GROUNDING6000_START, GROUNDING_START)
+STARTS = (SHIPPED_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START)
 EVERY = 5  # every fifth photo: 21 of the 101
 
 

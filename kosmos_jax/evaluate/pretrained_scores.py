@@ -1,11 +1,11 @@
 """An exported folder (workdir.export: weights, tokenizer.model and kosmos_e.json) scored on every
 photo of a Cornell-format folder, as a run's workdir is scored with --cornell.
 
-    results, rows, folder = evaluate_pretrained("results/pretrain/grounding10000", cornell="photos/",
-                                                kinds=("non", "multi"), out="runs/evaluate/grounding10000")
+    results, rows, folder = evaluate_pretrained("results/pretrain/grounding14000", cornell="photos/",
+                                                kinds=("non", "multi"), out="runs/evaluate/grounding14000")
 
-The folder is read as `GraspPredictor.from_pretrained` reads it (its text format, tokenizer and
-windows from kosmos_e.json) and decoded by the same GraspEvaluation as a workdir, under the honest
+The folder is read as `GraspPredictor.from_pretrained` reads an exported folder (its text format,
+tokenizer and windows from kosmos_e.json) and decoded by the same GraspEvaluation as a workdir, under the honest
 protocol. The files go to `out`/cornell-NAME, never into the exported folder itself (a shipped start
 stays as it was committed).
 """
@@ -17,12 +17,18 @@ import pathlib
 import time
 from collections.abc import Sequence
 
+import jax
+from jax.sharding import NamedSharding, PartitionSpec
+
 from kosmos_jax.instruct.kinds import NON
+from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.predict.errors import RunFolderError
-from kosmos_jax.predict.predictor import GraspPredictor
+from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
+from kosmos_jax.text.formatter import FormatConfig
+from kosmos_jax.text.tokenizer import load_tokenizer
+from kosmos_jax.workdir.files import TOKENIZER_FILE, RunError
 from kosmos_jax.workdir.pretrained import read_description
 
 DEFAULT_OUT = pathlib.Path("runs") / "evaluate"  # + the folder's name, relative to the working directory
@@ -43,23 +49,28 @@ def evaluate_pretrained(pretrained: str | os.PathLike, *, cornell: str | os.Path
         raise FileNotFoundError(f"--pretrained={pretrained}: no such folder")
     described = read_description(pretrained)
     if described is None:
-        raise RunFolderError(f"{pretrained} holds no kosmos_e.json: only a folder exported from a run "
+        raise RunError(f"{pretrained} holds no kosmos_e.json: only a folder exported from a run "
                              "(python -m kosmos_jax.workdir.export) says how it was trained to be asked")
     base = pathlib.Path(out) if out else DEFAULT_OUT / pretrained.resolve().name
     if base.resolve().is_relative_to(pretrained.resolve()):
         raise ValueError(f"--out={base} lies inside --pretrained={pretrained}: write the scores elsewhere, the "
                          "exported folder stays as it was made")
+    tokenizer_path = pretrained / TOKENIZER_FILE
+    if not tokenizer_path.is_file():
+        raise RunError(f"{tokenizer_path} is missing: an exported folder holds its run's tokenizer; export it again")
+    tokenizer = load_tokenizer(tokenizer_path, scheme=described["tokenizer"]["scheme"],
+                               numbers=described["tokenizer"]["numbers"])
+    config = FormatConfig(**described["format"])
+    made = cornell_examples(cornell, tokenizer, config, kinds)
     mesh = make_mesh(1, -1, 1)
-    predictor = GraspPredictor.from_pretrained(pretrained, mesh=mesh)
-    made = cornell_examples(cornell, predictor.tokenizer, predictor.format_config, kinds)
+    model = load_pretrained(pretrained)
+    params = jax.device_put(split_model(model)[1], NamedSharding(mesh, PartitionSpec()))
     given = {"value_window": value_window, "angle_window": angle_window}
     windows = {name: int(described.get(name, 0)) if given[name] is None else given[name] for name in given}
-    evaluation = GraspEvaluation(predictor.model_config, mesh, made.records, predictor.tokenizer,
-                                 predictor.format_config, "honest", batch_size=batch_size,
-                                 max_examples=max_examples, **windows)
-    figures, rows = evaluation.results(predictor.params)
+    evaluation = GraspEvaluation(model.config, mesh, made.records, tokenizer, config, "honest",
+                                 batch_size=batch_size, max_examples=max_examples, **windows)
+    figures, rows = evaluation.results(params)
     label = f"cornell-{pathlib.Path(cornell).resolve().name}"
-    config = predictor.format_config
     results = {"accuracy": figures.pop("accuracy"), "pretrained": str(pretrained.resolve()),
                "step": described["step"], "split": label, "cornell": str(pathlib.Path(cornell).resolve()),
                "kinds": list(kinds), "photos": made.photos, "views_without_grasps": made.views_without_grasps,
