@@ -107,11 +107,11 @@ def evaluate_command(args) -> int:
             if args.pretrained is not None:
                 results, rows, folder = evaluate_pretrained(args.pretrained, cornell=args.cornell, out=args.out,
                                                             **asked)
-                write(results, rows, folder)
             else:
                 results, rows, folder = evaluate(args.workdir, step=args.step, split=args.split,
                                                  cornell=args.cornell, **asked)
-                write(results, rows, folder)
+            write(results, rows, folder)
+            if args.workdir is not None:
                 write_overlays(args.workdir, results, rows, folder, args.overlays)
     except (RunError, FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -23,6 +23,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.kosmos2 import split_model
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.models.value_decoding import WINDOWS, chosen_windows
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
@@ -65,8 +66,8 @@ def evaluate_pretrained(pretrained: str | os.PathLike, *, cornell: str | os.Path
     mesh = make_mesh(1, -1, 1)
     model = load_pretrained(pretrained)
     params = jax.device_put(split_model(model)[1], NamedSharding(mesh, PartitionSpec()))
-    given = {"value_window": value_window, "angle_window": angle_window}
-    windows = {name: int(described.get(name, 0)) if given[name] is None else given[name] for name in given}
+    windows = chosen_windows({name: int(described.get(name, 0)) for name in WINDOWS},  # 0: exported before them
+                             value_window=value_window, angle_window=angle_window)
     evaluation = GraspEvaluation(model.config, mesh, made.records, tokenizer, config, "honest",
                                  batch_size=batch_size, max_examples=max_examples, **windows)
     figures, rows = evaluation.results(params)

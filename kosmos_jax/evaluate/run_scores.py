@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from kosmos_jax.instruct.kinds import NON
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.value_decoding import configured_windows
+from kosmos_jax.models.value_decoding import chosen_windows, configured_windows
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.scoring.tally import markdown
@@ -66,9 +66,7 @@ def evaluate_kosmos_e(workdir, *, step: int | None, split: str, cornell, kinds: 
     else:
         examples, label, protocol = run.split(split), split, run.protocol
         source = {"dataset_dir": run.description["dataset_dir"]}
-    given = {"value_window": value_window, "angle_window": angle_window}  # None: as the run's config says
-    windows = {name: configured if given[name] is None else given[name]
-               for name, configured in configured_windows(run.config).items()}
+    windows = chosen_windows(configured_windows(run.config), value_window=value_window, angle_window=angle_window)
     evaluation = GraspEvaluation(run.model_config, mesh, examples, run.tokenizer, run.format_config, protocol,
                                  batch_size=batch_size, max_examples=max_examples, **windows)
     figures, rows = evaluation.results(params)

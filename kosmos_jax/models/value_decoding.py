@@ -33,6 +33,11 @@ def configured_windows(config) -> dict[str, int]:
     return {name: int(decode.get(name, 0)) for name in WINDOWS}
 
 
+def chosen_windows(configured: dict[str, int], **given: int | None) -> dict[str, int]:
+    """{value_window, angle_window}: each one given (not None), else as `configured` says."""
+    return {name: configured[name] if given.get(name) is None else int(given[name]) for name in WINDOWS}
+
+
 def value_picker(token_texts, window: int, angle_window: int = 0) -> LocalMean | None:
     """The picker a decoder takes for `window` and `angle_window` (models.generation.generate): None
     (greedy) when both are 0."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import pathlib
 
-from kosmos_jax.workdir.files import RUN_FILE
+from kosmos_jax.workdir.files import RUN_FILE, read_description as read_run_description
 
 FORMAT_FILE = "kosmos_e.json"
 FIELDS = ("format", "tokenizer", "protocol", "grasp_size", "step", "workdir")
@@ -47,7 +47,7 @@ def start_chain(init: dict | None) -> list[dict]:
     link = {"workdir": str(start), "step": int(init["step"])}
     if not (start / RUN_FILE).is_file():
         return [link]
-    return [link, *start_chain(json.loads((start / RUN_FILE).read_text()).get("init"))]
+    return [link, *start_chain(read_run_description(start).get("init"))]
 
 
 def write_description(folder, description: dict) -> pathlib.Path:
