@@ -96,6 +96,7 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
             raise FileNotFoundError(f"config.init_from={config.init_from}: folder {start} does not exist")
         train_config.init_from = str(start)
     train_config.data.root = str(out / "datasets")
+    train_config.train.grasp_eval_at_end = False  # evaluate_run below decodes the test answers (once)
     workdir = out / "run"
     started = time.perf_counter()
     try:

@@ -435,6 +435,7 @@ def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workd
     assert "flag --angle_window=128: 128 is not an integer in the range [0, 127]" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # 52 s (make test's --durations, 2026-12-02, 2 cores)
 def test_an_exported_folder_scores_a_cornell_folder_as_its_run_does(workdir, tmp_path, capsys):
     folder = tmp_path / "photos"
     scenes.write_dataset(folder, photos=3, seed=12)

@@ -13,6 +13,7 @@ from kosmos_jax.sources.photo import Photo
 from kosmos_jax.dataset import views
 from kosmos_jax.scoring import fold_scores, no_learning
 from kosmos_jax.experiments import spec
+from kosmos_jax.train.metrics_log import read_metrics
 
 
 
@@ -211,6 +212,9 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     assert "all" in model and model["all"]["step"] == 6
     results = json.loads((tmp_path / "run" / "eval" / "6" / "results.json").read_text())
     assert results["accuracy"] == pytest.approx(model["all"]["mean"], abs=0.01)
+    # the test answers are decoded once, by the evaluate command's code: the trainer's last line has no grasps
+    last_test = [r for r in read_metrics(tmp_path / "run") if r.get("split") == "test"][-1]
+    assert last_test["step"] == 6 and "grasp_accuracy" not in last_test and "loss" in last_test
     out = capsys.readouterr().out
     assert "goal (kosmos_e >= image_centre + 50" in out
     # the same model on another seed's scenes: NON on each photo, the multi-object kinds on mosaics

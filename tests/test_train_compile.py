@@ -181,6 +181,7 @@ def test_tpu_topologies_give_one_device_a_chip():
     assert done.stdout.splitlines() == ["v5e:2x4 8 TPU v5 lite", "v4:2x2x1 4 TPU v4", "v6e:2x2 4 TPU v6 lite"]
 
 
+@pytest.mark.slow  # 36 s (make test's --durations, 2026-12-02, 2 cores)
 @pytest.mark.skipif(importlib.util.find_spec("libtpu") is None, reason="libtpu not installed (pip install -e '.[tpu]')")
 def test_compile_command_on_a_tpu_topology():
     # The smallest planned topology, about a minute on 2 cores: the TPU backend analyses no lowered

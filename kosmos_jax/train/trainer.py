@@ -365,7 +365,7 @@ def train(config, workdir) -> dict:
                 log.message(f"SIGTERM: saved step {step} in {workdir}; the same command resumes from it")
                 break
         if stopped is None:
-            log.write(task.test_record(step, state, True, log))
+            log.write(task.test_record(step, state, config.train.get("grasp_eval_at_end", True), log))
     finally:
         preemption.restore()
         checkpoints.close()

@@ -32,7 +32,9 @@ objects.py; drawing and depth: render.py; grasp rectangles: grasps.py (this pack
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+import itertools
 import json
 import math
 import os
@@ -55,6 +57,7 @@ from kosmos_jax import publish
 
 FIRST_NUMBER = 100  # Cornell's photos start at pcd0100
 MAX_PHOTOS = 9999 - FIRST_NUMBER + 1
+WRITERS = min(2, os.cpu_count() or 1)  # threads drawing photos: x1.7 on 2 cores (240 photos in 6.1 s against 10.5 s)
 PHOTOS_PER_OBJECT = ((1, 2, 3, 4, 5), (0.05, 0.05, 0.1, 0.75, 0.05))  # mean 3.7, like Cornell
 POSITIVES = ((2, 3, 4, 5, 6, 7), (0.05, 0.2, 0.3, 0.2, 0.15, 0.1))
 NEGATIVES = ((0, 1, 2, 3, 4), (0.03, 0.07, 0.2, 0.6, 0.1))
@@ -270,17 +273,27 @@ def write_dataset(out, photos: int, seed: int, overwrite: bool = False, progress
     return summary
 
 
-def _write_files(out: pathlib.Path, photos: int, seed: int, progress: bool) -> dict:
-    """Every file of the dataset into the (empty) folder `out`, the metadata last."""
-    (out / "processedData").mkdir()
-    z_lines, mapping_lines, metas = [], [], {}
-    spec, background, start = None, None, time.monotonic()
-    every = max(1, photos // 10)
-    for planned in plan(seed, photos):
+@dataclasses.dataclass(frozen=True)
+class WrittenPhoto:
+    """What the dataset's index files say of a photo that _write_group wrote."""
+    stem: str
+    folder: str
+    number: str
+    object_id: int
+    category: str
+    background: str
+    rectangles: int
+    meta: dict
+
+
+def _write_group(out: pathlib.Path, seed: int, group: list[PlannedPhoto]) -> list[WrittenPhoto]:
+    """Draw and write the photos of one background (consecutive in the plan), in order."""
+    spec, background, written = None, None, []
+    for planned in group:
         if spec is None or spec.object_id != planned.object_index:
             spec = sample_object(np.random.default_rng([seed, 1, planned.object_index]), planned.category,
                                  planned.object_index)
-        if background is None or background.name != f"pcdb_{planned.background_index + 1:04d}":
+        if background is None:
             name = f"pcdb_{planned.background_index + 1:04d}"
             background = make_background(np.random.default_rng([seed, 2, planned.background_index]), name)
         scene = make_scene(np.random.default_rng([seed, 3, planned.index]), spec, background)
@@ -288,14 +301,29 @@ def _write_files(out: pathlib.Path, photos: int, seed: int, progress: bool) -> d
         folder = out / folder_name
         folder.mkdir(exist_ok=True)
         write_photo(folder, stem, scene)
-        number = stem[3:]
-        rectangles = len(scene.positives) + len(scene.negatives)
-        z_lines += [f"{number} {spec.object_id} {spec.category} {background.name}\n"] * rectangles
-        mapping_lines.append(f"{stem}r.png {background.name}r.png\n")
-        metas[stem] = {"folder": folder_name, **scene.meta}
-        if progress and ((planned.index + 1) % every == 0 or planned.index + 1 == photos):
-            print(f"synthetic: {planned.index + 1}/{photos} photos ({time.monotonic() - start:.1f} s)",
-                  file=sys.stderr, flush=True)
+        written.append(WrittenPhoto(stem, folder_name, stem[3:], spec.object_id, spec.category, background.name,
+                                    len(scene.positives) + len(scene.negatives), scene.meta))
+    return written
+
+
+def _write_files(out: pathlib.Path, photos: int, seed: int, progress: bool) -> dict:
+    """Every file of the dataset into the (empty) folder `out`, the metadata last. The photos of one
+    background are drawn on one thread, the groups on WRITERS threads (the drawing's numpy and the PNG and
+    TIFF encoders release the GIL); every file's bytes are what one thread would write."""
+    (out / "processedData").mkdir()
+    z_lines, mapping_lines, metas = [], [], {}
+    start, done, every = time.monotonic(), 0, max(1, photos // 10)
+    groups = [list(group) for _, group in itertools.groupby(plan(seed, photos), key=lambda p: p.background_index)]
+    with concurrent.futures.ThreadPoolExecutor(WRITERS) as pool:
+        for written in pool.map(lambda group: _write_group(out, seed, group), groups):
+            for photo in written:
+                z_lines += [f"{photo.number} {photo.object_id} {photo.category} {photo.background}\n"] * photo.rectangles
+                mapping_lines.append(f"{photo.stem}r.png {photo.background}r.png\n")
+                metas[photo.stem] = {"folder": photo.folder, **photo.meta}
+            if progress and (done // every != (done + len(written)) // every or done + len(written) == photos):
+                print(f"synthetic: {done + len(written)}/{photos} photos ({time.monotonic() - start:.1f} s)",
+                      file=sys.stderr, flush=True)
+            done += len(written)
     (out / "processedData" / "z.txt").write_text("".join(z_lines))
     (out / "processedData" / "backgroundMapping.txt").write_text("".join(mapping_lines))
     header = {
