@@ -8,7 +8,8 @@
    notebooks open it); a finished run of the same config is reused (one of another is refused), a
    stopped one resumed.
    With config.init_from (a run's workdir or an exported folder) it fine-tunes from that start.
-   It decodes the held-out fold's answers and scores them (evaluate's code), and scores the
+   It decodes the held-out fold's answers once, with the grammar (evaluate's code; `python -m
+   kosmos_jax.evaluate --workdir=OUT/run` adds the decoding without it), and scores the
    image-centre and ground-truth-mean predictors on exactly the same test instructions. Then the
    same on config.fresh_photos scenes drawn with another seed (config.fresh_seed), which it never
    trained on: NON on each photo, and the multi-object kinds on four-photo mosaics of them
@@ -105,7 +106,7 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
         raise SystemExit(f"error: {error} (for the demo: remove {out}, or give --config.out=ANOTHER_FOLDER)") from None
     if not summary["finished"]:
         raise SystemExit(f"training stopped at step {summary['step']}: run `make demo` again to resume")
-    results = runner.evaluate_run(workdir, summary["step"])
+    results = runner.evaluate_run(workdir, summary["step"], unconstrained=False)
     no_learning = runner.no_learning_scores(workdir)["scores"]
     build = train_config.data.build
     data = f"{train_config.data.source}-{train_config.data.synthetic_photos}" \
@@ -155,7 +156,7 @@ def fresh_results(workdir: pathlib.Path, step: int, folder: pathlib.Path, kinds:
         results = json.loads(written.read_text())
         if results.get("kinds") == kinds and results.get("cornell") == str(folder.resolve()):
             return results
-    results, answers, where = evaluate(workdir, step=step, cornell=folder, kinds=kinds)
+    results, answers, where = evaluate(workdir, step=step, cornell=folder, kinds=kinds, unconstrained=False)
     write(results, answers, where)
     return results
 

@@ -15,6 +15,7 @@ import pytest
 from kosmos_jax import geometry
 from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.evaluate.__main__ import main
+from kosmos_jax.evaluate.run_scores import evaluate
 from kosmos_jax.grasp_text import ParsedGrasp, format_angle
 from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
@@ -233,6 +234,26 @@ def test_the_table_puts_the_target_ceiling_beside_the_accuracy_and_reads_older_r
             "targets: 3 texts, 2 centres, 4 angles, 2 grasps.") in table
 
 
+def test_without_the_unconstrained_decoding_the_constrained_figures_and_answers_stay(evaluated, workdir):
+    """What make demo asks for (half the decoding): the same constrained answers and figures, no
+    unconstrained ones, and a table without their columns."""
+    stdout, folder = evaluated
+    both = json.loads(stdout)
+    results, rows, _ = evaluate(workdir, unconstrained=False)
+    assert "unconstrained" not in results and results["constrained"] == both["constrained"]
+    for key in ("accuracy", "target_ceiling", "distinct", "angle_at_centre"):
+        assert results[key] == both[key], key
+    free_keys = {"unconstrained_accuracy", "unconstrained_parse_failures"}
+    for groups in ("by_kind", "by_scene"):
+        assert results[groups] == {name: {k: v for k, v in group.items() if k not in free_keys}
+                                   for name, group in both[groups].items()}
+    free_rows = {"unconstrained_answer", "unconstrained_parses", "unconstrained_correct"}
+    written = [json.loads(line) for line in (folder / "answers.jsonl").read_text().splitlines()]
+    assert rows == [{k: v for k, v in row.items() if k not in free_rows} for row in written]
+    table = markdown(results)
+    assert "unconstrained" not in table and f"| all | {results['instructions']} | {results['examples']} |" in table
+
+
 def with_value(record_, evaluation, index, tokenizer, value):
     """Example `index`'s record with its target value replaced by `value`, its stored tokens and text made to match."""
     cue = evaluation.question_of[index].prompt.cue
@@ -411,7 +432,6 @@ def test_the_angle_probe_reads_every_test_view_at_each_place_of_the_trained_and_
 
 @pytest.mark.slow  # 72 s with the values run it trains (make test's --durations, 2026-11-27, 2 cores)
 def test_value_tokens_are_read_as_the_run_s_config_says_unless_told(values_workdir, tmp_path, capsys):
-    from kosmos_jax.evaluate.run_scores import evaluate
 
     configured, rows, _ = evaluate(values_workdir, max_examples=8)
     greedy, greedy_rows, _ = evaluate(values_workdir, max_examples=8, value_window=0)

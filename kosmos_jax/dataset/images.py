@@ -116,9 +116,7 @@ class ImageTableWriter:
                 "num_bytes": self._shards.num_bytes, "shape": list(self.shape)}
 
     def abandon(self) -> None:
-        for pending in self._pending:
-            pending.cancel()
-        self._pending.clear()
+        self._pending.clear()  # shutdown cancels the encodings not started; a started one ends unread
         if self._encoders is not None:
             self._encoders.shutdown(cancel_futures=True)
         self._shards.abandon()

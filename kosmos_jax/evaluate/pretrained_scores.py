@@ -5,7 +5,7 @@ photo of a Cornell-format folder, as a run's workdir is scored with --cornell.
                                                 kinds=("non", "multi"), out="runs/evaluate/grounding14000")
 
 The folder is read as `GraspPredictor.from_pretrained` reads an exported folder (its text format,
-tokenizer and windows from kosmos_e.json) and decoded by the same GraspEvaluation as a workdir, under the honest
+tokenizer and windows from kosmos_e.json, by workdir.exported.folder_settings) and decoded by the same GraspEvaluation as a workdir, under the honest
 protocol. The files go to `out`/cornell-NAME, never into the exported folder itself (a shipped start
 stays as it was committed).
 """
@@ -27,10 +27,9 @@ from kosmos_jax.models.value_decoding import WINDOWS, chosen_windows
 from kosmos_jax.models.weights import load_pretrained
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
-from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import load_tokenizer
-from kosmos_jax.workdir.files import TOKENIZER_FILE, RunError
-from kosmos_jax.workdir.pretrained import read_description
+from kosmos_jax.workdir.exported import folder_settings
+from kosmos_jax.workdir.files import RunError
 
 DEFAULT_OUT = pathlib.Path("runs") / "evaluate"  # + the folder's name, relative to the working directory
 
@@ -48,32 +47,30 @@ def evaluate_pretrained(pretrained: str | os.PathLike, *, cornell: str | os.Path
     pretrained = pathlib.Path(pretrained)
     if not pretrained.is_dir():
         raise FileNotFoundError(f"--pretrained={pretrained}: no such folder")
-    described = read_description(pretrained)
-    if described is None:
+    settings = folder_settings(pretrained)
+    if not settings:
         raise RunError(f"{pretrained} holds no kosmos_e.json: only a folder exported from a run "
-                             "(python -m kosmos_jax.workdir.export) says how it was trained to be asked")
+                       "(python -m kosmos_jax.workdir.export) says how it was trained to be asked")
     base = pathlib.Path(out) if out else DEFAULT_OUT / pretrained.resolve().name
     if base.resolve().is_relative_to(pretrained.resolve()):
         raise ValueError(f"--out={base} lies inside --pretrained={pretrained}: write the scores elsewhere, the "
                          "exported folder stays as it was made")
-    tokenizer_path = pretrained / TOKENIZER_FILE
-    if not tokenizer_path.is_file():
-        raise RunError(f"{tokenizer_path} is missing: an exported folder holds its run's tokenizer; export it again")
-    tokenizer = load_tokenizer(tokenizer_path, scheme=described["tokenizer"]["scheme"],
-                               numbers=described["tokenizer"]["numbers"])
-    config = FormatConfig(**described["format"])
+    if not settings["tokenizer"].is_file():
+        raise RunError(f"{settings['tokenizer']} is missing: an exported folder holds its run's tokenizer; export it again")
+    tokenizer = load_tokenizer(settings["tokenizer"], scheme=settings["scheme"], numbers=settings["numbers"])
+    config = settings["format_config"]
     made = cornell_examples(cornell, tokenizer, config, kinds)
     mesh = make_mesh(1, -1, 1)
     model = load_pretrained(pretrained)
     params = jax.device_put(split_model(model)[1], NamedSharding(mesh, PartitionSpec()))
-    windows = chosen_windows({name: int(described.get(name, 0)) for name in WINDOWS},  # 0: exported before them
-                             value_window=value_window, angle_window=angle_window)
+    windows = chosen_windows({name: settings[name] for name in WINDOWS}, value_window=value_window,
+                             angle_window=angle_window)
     evaluation = GraspEvaluation(model.config, mesh, made.records, tokenizer, config, "honest",
                                  batch_size=batch_size, max_examples=max_examples, **windows)
     figures, rows = evaluation.results(params)
     label = f"cornell-{pathlib.Path(cornell).resolve().name}"
     results = {"accuracy": figures.pop("accuracy"), "pretrained": str(pretrained.resolve()),
-               "step": described["step"], "split": label, "cornell": str(pathlib.Path(cornell).resolve()),
+               "step": settings["step"], "split": label, "cornell": str(pathlib.Path(cornell).resolve()),
                "kinds": list(kinds), "photos": made.photos, "views_without_grasps": made.views_without_grasps,
                "representation": config.representation, "individual": config.individual,
                "angle_code": config.angle_code, **figures, "max_examples": max_examples, "batch_size": batch_size,

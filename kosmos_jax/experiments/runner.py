@@ -40,14 +40,15 @@ def default_train(config, workdir) -> dict:
     return train(config, workdir)
 
 
-def evaluate_run(workdir: pathlib.Path, step: int) -> dict:
-    """The run's test results at `step`, by the evaluate command's code (written under eval/STEP/)."""
+def evaluate_run(workdir: pathlib.Path, step: int, unconstrained: bool = True) -> dict:
+    """The run's test results at `step`, by the evaluate command's code (written under eval/STEP/);
+    `unconstrained` False: without the decoding that ignores the grammar (evaluate's docstring)."""
     existing = workdir / "eval" / str(step) / "results.json"
     if existing.is_file():
         return json.loads(existing.read_text())
     from kosmos_jax.evaluate.run_scores import evaluate, write
 
-    results, rows, folder = evaluate(workdir, step=step)
+    results, rows, folder = evaluate(workdir, step=step, unconstrained=unconstrained)
     write(results, rows, folder)
     return results
 

@@ -43,8 +43,9 @@ from kosmos_jax.scoring.prompts import left_padded
 from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.text.tokenizer import Tokenizer, load_tokenizer
-from kosmos_jax.workdir.files import TOKENIZER_FILE, RunError
-from kosmos_jax.workdir.pretrained import FORMAT_FILE, read_description
+from kosmos_jax.workdir.exported import folder_settings
+from kosmos_jax.workdir.files import RunError
+from kosmos_jax.workdir.pretrained import FORMAT_FILE
 from kosmos_jax.workdir.run import open_run
 
 BATCH_SIZES = (1, 4, 16)
@@ -218,16 +219,8 @@ class GraspPredictor:
 
 
 def _exported(folder: pathlib.Path) -> dict:
-    """from_pretrained's defaults from FOLDER/kosmos_e.json (workdir.pretrained); {} when it has none."""
+    """from_pretrained's defaults from FOLDER/kosmos_e.json (workdir.exported); {} when it has none."""
     try:
-        described = read_description(folder)
-        if described is None:
-            return {}
-        return {"tokenizer": folder / TOKENIZER_FILE, "scheme": described["tokenizer"]["scheme"],
-                "numbers": described["tokenizer"]["numbers"], "format_config": FormatConfig(**described["format"]),
-                "protocol": described["protocol"], "grasp_size": tuple(described["grasp_size"]),
-                **{name: int(described.get(name, 0)) for name in WINDOWS}}
+        return folder_settings(folder)
     except ValueError as error:
         raise RunFolderError(str(error)) from None
-    except (KeyError, TypeError) as error:  # fields of another shape than export writes
-        raise RunFolderError(f"{folder / FORMAT_FILE}: unreadable ({error!r}); export the run again") from None

@@ -5,6 +5,7 @@ the grammar) -> parses -> one grasp per instruction -> rectangle metric.
     evaluation.grasp_accuracy(params)       # percent, constrained (what the trainer logs)
     evaluation.target_ceiling()             # percent: the examples' own targets scored as answers
     results, answers = evaluation.results(params)   # both decodings, per kind and scene
+    results, answers = evaluation.results(params, unconstrained=False)   # the constrained one alone
 
 Built once per split: the prompts, the batches (each part's prompts left-padded to one length,
 the last batch filled with copies of its first row, so each part compiles once), the constraints
@@ -119,17 +120,20 @@ class GraspEvaluation:
         """Percent of instructions whose constrained answers make a correct grasp."""
         return tally.percent(self.successes(self.answers(params)))
 
-    def results(self, params) -> tuple[dict, list[dict]]:
+    def results(self, params, unconstrained: bool = True) -> tuple[dict, list[dict]]:
         """(figures of both decodings and of the targets, overall and per kind and scene, and the
-        distinct answers and targets; one row per example with both answers)."""
-        held, free = self.answers(params, constrained=True), self.answers(params, constrained=False)
+        distinct answers and targets; one row per example with both answers). `unconstrained` False
+        decodes with the grammar alone (half the time): the unconstrained figures and answers are left out."""
+        held = self.answers(params, constrained=True)
+        free = self.answers(params, constrained=False) if unconstrained else None
         held_grasps = self.grasps(held)
         success = tally.successes(self.instructions, held_grasps, self.protocol, self.backend)
         angle_errors = tally.angle_errors(self.instructions, held_grasps)
-        free_success = self.successes(free)
+        free_success = self.successes(free) if unconstrained else None
         targets = self.targets()
         ceiling = self.successes(targets)
-        free_failed = np.array([sum(not free[i][1].ok for i in inst.examples.values()) for inst in self.instructions])
+        free_failed = np.array([sum(not free[i][1].ok for i in inst.examples.values())
+                                for inst in self.instructions]) if unconstrained else None
 
         def decoding(hits, answers):
             failures = sum(not parsed.ok for _, parsed in answers.values())
@@ -142,7 +146,8 @@ class GraspEvaluation:
         results = {"accuracy": tally.percent(success), "instructions": len(self.instructions),
                    "examples": self.examples, "protocol": self.protocol, "backend": self.backend,
                    "wh_policy": WH_POLICY[self.protocol],
-                   "constrained": decoding(success, held), "unconstrained": decoding(free_success, free),
+                   "constrained": decoding(success, held),
+                   **({"unconstrained": decoding(free_success, free)} if unconstrained else {}),
                    "target_ceiling": tally.percent(ceiling),
                    "distinct": {"answers": tally.distinct(self.instructions, held),
                                 "targets": tally.distinct(self.instructions, targets)},
@@ -155,8 +160,10 @@ class GraspEvaluation:
                  "photo_ids": [text(p) for p in records[index]["photo_ids"]],
                  "instruction": instruction.instruction, "target_text": text(records[index]["target_text"]),
                  "answer": held[index][0], "answer_parses": held[index][1].ok,
-                 "unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok,
-                 "correct": bool(success[number]), "unconstrained_correct": bool(free_success[number]),
+                 **({"unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok}
+                    if unconstrained else {}),
+                 "correct": bool(success[number]),
+                 **({"unconstrained_correct": bool(free_success[number])} if unconstrained else {}),
                  "target_correct": bool(ceiling[number])}
                 for number, instruction in enumerate(self.instructions) for part, index in instruction.examples.items()]
         return results, rows

@@ -89,14 +89,19 @@ def group_accuracy(instructions: Sequence[Instruction], success: np.ndarray, lab
     return {name: _figures(instructions, success, idx) for name, idx in group_members(instructions, label).items()}
 
 
-def group_figures(instructions: Sequence[Instruction], success: np.ndarray, free_success: np.ndarray,
-                  free_failed: np.ndarray, label, ceiling: np.ndarray | None = None) -> dict[str, dict]:
-    """{group: {accuracy, instructions, examples, unconstrained_accuracy, unconstrained_parse_failures
+def group_figures(instructions: Sequence[Instruction], success: np.ndarray, free_success: np.ndarray | None,
+                  free_failed: np.ndarray | None, label, ceiling: np.ndarray | None = None) -> dict[str, dict]:
+    """{group: {accuracy, instructions, examples[, unconstrained_accuracy, unconstrained_parse_failures]
     [, target_ceiling]}} with `label(instruction)` naming each instruction's group; `free_failed` [G]
-    counts each instruction's unconstrained answers that did not parse; `ceiling` [G], when given, says
-    whether each instruction's own targets, scored as answers, hit."""
-    return {name: {**_figures(instructions, success, idx), "unconstrained_accuracy": percent(free_success[idx]),
-                   "unconstrained_parse_failures": int(free_failed[idx].sum()),
+    counts each instruction's unconstrained answers that did not parse (both None: no unconstrained
+    decoding); `ceiling` [G], when given, says whether each instruction's own targets, scored as answers, hit."""
+    def free(idx):
+        if free_success is None:
+            return {}
+        return {"unconstrained_accuracy": percent(free_success[idx]),
+                "unconstrained_parse_failures": int(free_failed[idx].sum())}
+
+    return {name: {**_figures(instructions, success, idx), **free(idx),
                    **({} if ceiling is None else {"target_ceiling": percent(ceiling[idx])})}
             for name, idx in group_members(instructions, label).items()}
 
@@ -135,8 +140,10 @@ def distinct_text(counts: Mapping[str, int]) -> str:
 def markdown(results: dict) -> str:
     """The results as a Markdown table: overall, per scene, per kind, with the target ceiling beside
     the accuracy where the results have one, and a line of distinct answers and targets where they
-    have it. Results without an unconstrained decoding (a baseline's) get the accuracy column alone."""
-    decoded = "unconstrained" in results
+    have it. Results of no decoding (a baseline's) get the accuracy column alone; decoded results
+    without the unconstrained decoding (asked not to make it) get no unconstrained columns."""
+    free = "unconstrained" in results
+    decoded = free or "constrained" in results
     ceiling = "target_ceiling" in results
     who = "" if decoded else f"{results['model']}, "
     head = (f"{who}Step {results['step']}, {results['split']} ({results['examples']} examples, "
@@ -147,10 +154,10 @@ def markdown(results: dict) -> str:
     if decoded:
         ceiling_head = " target ceiling |" if ceiling else ""
         lines = ["| group | instructions | examples | accuracy (constrained) |" + ceiling_head
-                 + " accuracy (unconstrained) | unconstrained parse failures |",
-                 "|---|---:|---:|---:|---:|---:|" + ("---:|" if ceiling else "")]
-        free = results["unconstrained"]
-        extra = {"unconstrained_accuracy": free["accuracy"], "unconstrained_parse_failures": free["parse_failures"]}
+                 + (" accuracy (unconstrained) | unconstrained parse failures |" if free else ""),
+                 "|---|---:|---:|---:|" + ("---:|" if ceiling else "") + ("---:|---:|" if free else "")]
+        extra = {"unconstrained_accuracy": results["unconstrained"]["accuracy"],
+                 "unconstrained_parse_failures": results["unconstrained"]["parse_failures"]} if free else {}
     else:
         lines = ["| group | instructions | examples | accuracy |", "|---|---:|---:|---:|"]
         extra = {}
@@ -163,7 +170,7 @@ def markdown(results: dict) -> str:
         cells = f"| {name} | {g['instructions']} | {g['examples']} | {g['accuracy']:.2f} |"
         if decoded and ceiling:
             cells += f" {g['target_ceiling']:.2f} |" if "target_ceiling" in g else " |"
-        if decoded:
+        if free:
             cells += f" {g['unconstrained_accuracy']:.2f} | {g['unconstrained_parse_failures']} |"
         lines.append(cells)
     table = head + "\n".join(lines) + "\n"
