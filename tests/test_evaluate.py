@@ -317,6 +317,7 @@ def test_a_workdir_without_checkpoints_or_tokenizer_is_an_error_that_says_so(wor
     assert code == 1 and "unknown split 'valid'" in err
 
 
+@pytest.mark.slow  # 28 s (make test's --durations, 2026-12-02, 2 cores)
 def test_every_photo_of_a_cornell_folder_is_scored(workdir, tmp_path):
     folder = tmp_path / "photos"
     scenes.write_dataset(folder, photos=3, seed=11)

@@ -76,6 +76,7 @@ def test_the_grasp_size_is_the_protocols_borrowed_size_of_the_training_views(pre
     assert predictor.grasp_size == pytest.approx((np.mean(widths), np.mean(jaws)))
 
 
+@pytest.mark.slow  # 21 s (make test's --durations, 2026-12-02, 2 cores)
 def test_batches_are_padded_to_fixed_sizes_and_compiled_once_each(workdir, photo):
     predictor = GraspPredictor.from_workdir(workdir, mesh=one_device(), batch_sizes=(1, 4, 16))
     compiled = predictor._decoder._jitted._cache_size

@@ -57,6 +57,7 @@ def test_a_shipped_start_answers_most_real_cornell_photos_with_a_centre_on_the_o
     assert sum(on_object) >= 0.75 * len(photos)
 
 
+@pytest.mark.slow  # 36 s for make demo's start; the bad-input checks below run the command on it in the fast suite (make test's --durations, 2026-12-02, 2 cores)
 def test_the_predict_command_reads_a_shipped_start_alone_and_answers_as_the_library_does(cornell_root, shipped):
     start, predictor = shipped
     photo = cornell.find_photos(cornell_root)[0].rgb

@@ -169,6 +169,7 @@ def test_loss_mask_marks_targets_predicted_from_the_previous_position():
     assert float(sums["loss_sum"]) == pytest.approx(-float(log_p[1, 6] + log_p[2, 7]), rel=1e-6)
 
 
+@pytest.mark.slow  # 28 s (make test's --durations, 2026-12-02, 2 cores)
 def test_loss_is_the_mean_over_loss_tokens_of_the_global_batch():
     batch = _batch(seed=3, loss_tokens=[1, 2, 3, 4, 5, 6, 7, 8])
     model = nnx.view(_model(NO_DROPOUT), deterministic=True)
@@ -261,6 +262,7 @@ def test_scanned_rematerialised_bfloat16_model_trains_and_decays_the_same_weight
     assert losses[-1] < losses[0] - 0.5, losses
 
 
+@pytest.mark.slow  # 17 s (make test's --durations, 2026-12-02, 2 cores)
 def test_four_microbatches_of_two_update_as_one_batch_of_eight():
     batch = _batch(seed=1)
     after = {}
@@ -297,6 +299,7 @@ def test_non_finite_step_returns_the_state_unchanged():
         np.testing.assert_array_equal(b, a)
 
 
+@pytest.mark.slow  # 30 s (make test's --durations, 2026-12-02, 2 cores)
 def test_dropout_keys_depend_on_seed_and_step_only():
     keys = {(seed, s): jax.random.key_data(step.dropout_key(seed, s)).tolist() for seed in (0, 1) for s in (0, 1)}
     assert len({json.dumps(k) for k in keys.values()}) == 4
