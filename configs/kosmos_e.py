@@ -136,7 +136,7 @@ def train_config(**changes) -> ml_collections.ConfigDict:
     train.eval_batches = 4  # test batches per evaluation (0: the whole test split)
     train.grasp_eval_every = 0  # grasp accuracy of decoded test answers every N steps (0: only at the end)
     # decode the test answers at the end too (the last line's grasp_accuracy); a caller that scores the finished
-    # run with the evaluate command's code, which decodes them again, turns it off (make demo: about 50 s)
+    # run with the evaluate command's code, which decodes them again, turns it off (make demo)
     train.grasp_eval_at_end = True
     train.pointing_loss = 0.0  # weight of the connector's pointing loss (kosmos_jax.train.loss.pointing_sum); 0: none
     train.angle_smoothing = 0.0  # > 0: circular smooth labels on angle tokens, this many bins wide (train.loss); 0: none

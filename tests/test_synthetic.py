@@ -323,6 +323,19 @@ def test_same_seed_same_bytes_and_prefix_stable(dataset, tmp_path):
         assert not filecmp.cmp(first / rel, other / rel, shallow=False), rel
 
 
+def test_the_writer_threads_change_no_byte(tmp_path, monkeypatch):
+    """Enough photos for several backgrounds, so the two threads each draw some; the index files keep the plan's order."""
+    threaded = tmp_path / "threads"
+    scenes.write_dataset(threaded, 40, SEED)
+    monkeypatch.setattr(scenes, "WRITERS", 1)
+    alone = tmp_path / "one"
+    scenes.write_dataset(alone, 40, SEED)
+    assert len({p.background_index for p in scenes.plan(SEED, 40)}) > 2
+    assert all_files(threaded) == all_files(alone)
+    for rel in all_files(alone):
+        assert filecmp.cmp(threaded / rel, alone / rel, shallow=False), rel
+
+
 # ---- command line ----------------------------------------------------------------------------
 
 

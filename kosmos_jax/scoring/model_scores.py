@@ -159,11 +159,9 @@ class GraspEvaluation:
         rows = [{"example": index, "kind": instruction.kind, "scene": instruction.scene, "part": part,
                  "photo_ids": [text(p) for p in records[index]["photo_ids"]],
                  "instruction": instruction.instruction, "target_text": text(records[index]["target_text"]),
-                 "answer": held[index][0], "answer_parses": held[index][1].ok,
-                 **({"unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok}
-                    if unconstrained else {}),
-                 "correct": bool(success[number]),
-                 **({"unconstrained_correct": bool(free_success[number])} if unconstrained else {}),
+                 "answer": held[index][0], "answer_parses": held[index][1].ok, "correct": bool(success[number]),
+                 **({"unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok,
+                     "unconstrained_correct": bool(free_success[number])} if unconstrained else {}),
                  "target_correct": bool(ceiling[number])}
                 for number, instruction in enumerate(self.instructions) for part, index in instruction.examples.items()]
         return results, rows

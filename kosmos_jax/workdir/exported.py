@@ -15,7 +15,7 @@ from kosmos_jax.workdir.pretrained import FORMAT_FILE, read_description
 
 
 def folder_settings(folder) -> dict:
-    """{tokenizer, scheme, numbers, format_config, protocol, grasp_size, value_window, angle_window} of the
+    """{tokenizer, scheme, numbers, format_config, protocol, grasp_size, step, value_window, angle_window} of the
     exported `folder`; {} when it holds no kosmos_e.json (e.g. an imported KOSMOS-2). ValueError for a
     kosmos_e.json that is not JSON or not of the shape export writes."""
     folder = pathlib.Path(folder)
