@@ -480,6 +480,20 @@ def test_an_exported_folder_scores_a_cornell_folder_as_its_run_does(workdir, tmp
                                                          "tokenizer.model"]  # nothing written into the folder
 
 
+def test_nounconstrained_scores_a_run_and_an_exported_folder_with_the_grammar_only(workdir, tmp_path, capsys):
+    folder = tmp_path / "grammar_only"
+    scenes.write_dataset(folder, photos=2, seed=13)
+    exported = tmp_path / "exported"
+    export_pretrained(workdir, exported)
+    both = evaluate(workdir, cornell=folder)[0]
+    for source in ([f"--workdir={workdir}"], [f"--pretrained={exported}", f"--out={tmp_path / 'scores'}"]):
+        code, out, err = run_cli(capsys, *source, f"--cornell={folder}", "--json", "--nounconstrained")
+        assert code == 0, err[-3000:]
+        results = json.loads(out)
+        assert "unconstrained" not in results and results["constrained"] == both["constrained"], source
+        assert results["accuracy"] == both["accuracy"] and results["instructions"] == both["instructions"]
+
+
 def test_an_exported_folder_is_refused_what_only_a_run_has_in_one_line(workdir, tmp_path, capsys):
     exported = tmp_path / "exported"
     export_pretrained(workdir, exported)

@@ -1,7 +1,7 @@
 """Score a trained run's grasps from its greedy answers, with and without the grasp grammar.
 
     python -m kosmos_jax.evaluate --workdir=runs/demo [--step=N] [--split=test] [--json]
-        [--batch_size=16] [--max_examples=0] [--overlays=N]
+        [--batch_size=16] [--max_examples=0] [--overlays=N] [--nounconstrained]
     python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
     python -m kosmos_jax.evaluate --pretrained=FOLDER --cornell=PATH [--kinds=non] [--out=DIR] [--json]
 
@@ -13,7 +13,8 @@ scored under the run's protocol; a Cornell folder under the honest one. --pretra
 exported from a run (workdir.export) on a Cornell folder alike, into OUT/cornell-<folder name>
 (default OUT: runs/evaluate/<the exported folder's name>; never inside the exported folder). results.json holds:
   accuracy           the constrained accuracy overall, in percent;
-  constrained, unconstrained   each decoding's accuracy, correct, answers, parse failures;
+  constrained, unconstrained   each decoding's accuracy, correct, answers, parse failures
+                     (--nounconstrained: the grammar's decoding only, no unconstrained figures);
   target_ceiling     the accuracy of the examples' own targets, read back from their stored tokens
                      and parsed, combined and scored exactly as the answers are: what a model that
                      reproduced its targets would score (below ~100 a flaw of the targets, of
@@ -70,6 +71,8 @@ def define_flags(flag_values: flags.FlagValues) -> None:
     define("integer", "angle_window", None, "N: read angle tokens as the circular local mean within N bins of the "
            "mode (0: the mode; default: the run's config.decode.angle_window, 0 for runs made before it)",
            lower_bound=0, upper_bound=MAX_ANGLE_WINDOW)
+    define("bool", "unconstrained", True, "also decode without the grammar (the unconstrained_* figures); "
+           "--nounconstrained decodes with the grammar only, in about half the time")
     define("bool", "json", False, "print results.json as one line on stdout")
     define("integer", "overlays", 0, "N: draw N scored views of each instruction kind to "
            "eval/STEP/overlays/KIND.png (overlays.py)", lower_bound=0)
@@ -101,7 +104,7 @@ def evaluate_command(args) -> int:
         print(f"error: {misuse}", file=sys.stderr)
         return 1
     asked = dict(kinds=tuple(args.kinds), batch_size=args.batch_size, max_examples=args.max_examples,
-                   value_window=args.value_window, angle_window=args.angle_window)
+                   value_window=args.value_window, angle_window=args.angle_window, unconstrained=args.unconstrained)
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
             if args.pretrained is not None:
