@@ -51,14 +51,14 @@ def by_category(records: Sequence[Mapping], rows: Sequence[Mapping], config: For
     hits = {name: np.asarray(tally.successes(instructions, made, protocol))
             for name, made in oracle_grasps(instructions, grasps).items()}
     distance = np.hypot(*(nearest_truths(instructions, grasps)[:, :2] - grasps[:, :2]).T)
-    photo_of = [text(records[min(i.examples.values())]["photo_ids"][0]) for i in instructions]
-    missing = sorted({photo for photo in photo_of if photo not in categories})
+    photo = lambda instruction: text(records[min(instruction.examples.values())]["photo_ids"][0])
+    missing = sorted({photo(instruction) for instruction in instructions} - categories.keys())
     if missing:
         raise RunError(f"{len(missing)} scored photos (first {missing[0]}) are not in the folder's {META}")
-    members = tally.group_members(list(range(len(instructions))), lambda row: categories[photo_of[row]])
-    return {category: {"instructions": len(rows_), **{name: tally.percent(hits[name][rows_]) for name in SCORES},
-                       "median_centre_px": round(float(np.nanmedian(distance[rows_])), 2)}
-            for category, rows_ in sorted(members.items())}
+    members = tally.group_members(instructions, lambda instruction: categories[photo(instruction)])
+    return {category: {"instructions": len(rows), **{name: tally.percent(hits[name][rows]) for name in SCORES},
+                       "median_centre_px": round(float(np.nanmedian(distance[rows])), 2)}
+            for category, rows in members.items()}
 
 
 def main(argv=None) -> int:
@@ -73,8 +73,7 @@ def categories_command(args) -> None:
             raise RunError("give --scored=cornell-NAME: categories are known for a scored synthetic folder only")
         run = open_run(workdir)
         step = chosen_step(workdir, args.step)
-        records, protocol = scored_records(run, step, args.scored)
-        folder = json.loads((workdir / "eval" / str(step) / args.scored / "results.json").read_text())["cornell"]
+        records, protocol, folder = scored_records(run, step, args.scored)
         figures = by_category(records, read_answers(workdir, step, args.scored), run.format_config, protocol,
                               photo_categories(folder))
     except RunError as error:

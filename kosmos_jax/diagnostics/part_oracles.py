@@ -80,10 +80,11 @@ def part_oracles(records: Sequence[Mapping], rows: Sequence[Mapping], config: Fo
             "by_kind": {kind: {name: tally.percent(hits[name][idx]) for name in SCORES} for kind, idx in kinds.items()}}
 
 
-def scored_records(run, step: int, scored: str) -> tuple[Sequence[Mapping], str]:
-    """(records, protocol) of the answers read: the run's test split, or the folder evaluate --cornell scored."""
+def scored_records(run, step: int, scored: str) -> tuple[Sequence[Mapping], str, str | None]:
+    """(records, protocol, Cornell-format folder) of the answers read: the run's test split (folder None),
+    or the folder evaluate --cornell scored."""
     if not scored:
-        return run.split("test").examples, run.protocol
+        return run.split("test").examples, run.protocol, None
     results_path = run.workdir / "eval" / str(step) / scored / "results.json"
     if not results_path.is_file():
         raise RunError(f"no {results_path}: score the folder first with python -m kosmos_jax.evaluate "
@@ -92,7 +93,7 @@ def scored_records(run, step: int, scored: str) -> tuple[Sequence[Mapping], str]
     if "cornell" not in results:
         raise RunError(f"{results_path} is not a scored Cornell-format folder (no 'cornell' key)")
     made = cornell_examples(results["cornell"], run.tokenizer, run.format_config, results["kinds"])
-    return made.records, "honest"
+    return made.records, "honest", results["cornell"]
 
 
 def main(argv=None) -> int:
@@ -105,7 +106,7 @@ def oracles_command(args) -> None:
     try:
         run = open_run(workdir)
         step = chosen_step(workdir, args.step)
-        records, protocol = scored_records(run, step, args.scored)
+        records, protocol, _ = scored_records(run, step, args.scored)
         figures = {"step": step, "protocol": protocol, "scored": args.scored or "test",
                    **part_oracles(records, read_answers(workdir, step, args.scored), run.format_config, protocol)}
     except RunError as error:
