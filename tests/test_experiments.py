@@ -547,6 +547,22 @@ def test_the_pretrained_data_sweep_fine_tunes_the_shipped_start_on_more_and_more
     assert spec.parse_folds(config.folds, config.k) == [0, 1, 2] and config.schemes == "image"
 
 
+def test_the_cornell_data_sweep_fine_tunes_the_grounding_start_on_more_and_more_views():
+    """The paper's Fig. 6 on Cornell: make demo's fine-tune, NON only, at four augmentation counts, both schemes."""
+    tune = spec.load_config("configs/kosmos_e.py:demo_grounded")
+    config = spec.load_config("configs/experiments/data_size.py:cornell_grounded")
+    built = {n: spec.arm_config(config, n) for n in spec.arm_names(config)}
+    assert sorted(b.data.build.augmentations for b in built.values()) == [2, 4, 8, 16]
+    assert all(config.arms[n].series == "augmentations" for n in built)
+    for b in built.values():
+        assert b.init_from == spec.GROUNDING_START and (spec.REPO / b.init_from).is_dir() and b.require_init
+        assert b.model == tune.model and b.optimizer == tune.optimizer and b.train == tune.train
+        assert b.data.source == "cornell" and b.data.build.kinds == "non"
+        assert b.data.build.train_crop == tune.data.build.train_crop == "image_centre"
+    assert spec.parse_folds(config.folds, config.k) == [0, 1]
+    assert (config.schemes, config.protocols) == ("image,object", "honest")
+
+
 def test_the_scratch_data_sweep_is_the_pretrained_one_without_its_start():
     """The same arms, data, steps and folds as cpu_pretrained; the from-scratch recipe's model and rate."""
     scratch_recipe = spec.load_config("configs/kosmos_e.py:demo_photos")

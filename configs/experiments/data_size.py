@@ -25,6 +25,10 @@ of seed 0, 4 augmentations each (1,200 is the demo's own data); honest protocol,
 and 2 for the spread. About 10 minutes a fold on 2 quiet cores.
 cpu_scratch: cpu_pretrained's arms, data, steps and folds with no start: configs/kosmos_e.py:demo_photos
 (the from-scratch recipe at its own peak learning rate, 1e-3), the rows beside the pretrained ones.
+cornell_grounded: the paper's own Fig. 6 setting, the Cornell photos with more and more augmented views (2, 4,
+8 and 16 a photo), each arm `make demo`'s fine-tune (configs/kosmos_e.py:demo_grounded: 400 steps of 32 at
+peak rate 3e-4) from the committed grounding start (pretrained on synthetic scenes only, never a Cornell
+photo), instruction kind NON, honest protocol, image- and object-wise folds 0 and 1.
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.
@@ -34,11 +38,12 @@ slot-angle losses (2026-11-26) and before fold records kept their recipe: --reco
 tell them from today's recipe, so a rerun must not carry them in.
 """
 
-from kosmos_jax.experiments.spec import SHIPPED_START, arm, experiment
+from kosmos_jax.experiments.spec import GROUNDING_START, SHIPPED_START, arm, experiment
 
 CPU_STEPS = 200
-VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_scratch", "paper")
+VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_scratch", "cornell_grounded", "paper")
 PHOTO_COUNTS = (150, 300, 600, 1200)  # cpu_pretrained's and cpu_scratch's arms
+CORNELL_AUGMENTATIONS = (2, 4, 8, 16)  # cornell_grounded's arms
 
 
 def get_config(arg: str | None = None):
@@ -74,6 +79,13 @@ def get_config(arg: str | None = None):
         arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos", {
             "data.synthetic_photos": p, "data.build.kinds": "non"}, series="photos") for p in PHOTO_COUNTS}
         return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
+    if variant == "cornell_grounded":
+        # NON texts are short: the demo's own 88 tokens rather than the mosaics' 128
+        arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:demo_grounded", {
+            "data.source": "cornell", "data.build.kinds": "non", "data.build.max_length": 88,
+            "data.build.augmentations": a, "init_from": GROUNDING_START}, series="augmentations")
+            for a in CORNELL_AUGMENTATIONS}
+        return experiment("data_size", arms, schemes="image,object", protocols="honest", folds="0,1", data_size_plot=True)
     arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
             for a in (4, 8, 16, 32)}
     arms.update({f"synthetic{p}": arm("configs/kosmos_e.py:paper", {
