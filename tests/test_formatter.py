@@ -114,6 +114,37 @@ def test_target_grasp_choice():
         format_sample(_sample(grasps), FormatConfig(target_grasp="random"))
 
 
+def _rows(centres, angles):
+    return np.array([[x, y, 30.0, 10.0, a] for (x, y), a in zip(centres, angles)])
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_top_target_is_a_function_of_the_grasps_whatever_their_order(order):
+    """A ring's rim grasps answer with the top one, a lying bar's with its middle, a standing bar's with its
+    upper end (image y grows downwards), whichever row each is in."""
+    ring = [(100 + 30 * np.cos(t), 120 + 30 * np.sin(t)) for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
+    ring_angles = [(t + np.pi / 2 + np.pi / 2) % np.pi - np.pi / 2 for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
+    cases = [(ring, ring_angles, (100.0, 90.0)),
+             ([(60 + 20 * i, 100) for i in range(7)], [1.5] * 7, (120.0, 100.0)),
+             ([(100, 50 + 20 * i) for i in range(5)], [0.0] * 5, (100.0, 50.0))]
+    for centres, angles, expected in cases:
+        grasps = np.random.default_rng(order).permutation(_rows(centres, angles))
+        (location, angle) = format_sample(_sample(grasps), FormatConfig(target_grasp="top"))
+        np.testing.assert_allclose(location.grasp[:2], expected, atol=1e-9)
+        assert location.grasp.tolist() == angle.grasp.tolist()  # the angle asked apart is the same grasp's
+        assert np.array_equal(location.answers, grasps)  # every grasp still answers when scored
+
+
+def test_top_target_of_one_grasp_and_of_a_tie():
+    (only,) = format_sample(_sample(_rows([(5, 7)], [0.3])), FormatConfig(target_grasp="top", individual=False))
+    assert only.grasp[:2].tolist() == [5.0, 7.0]
+    tie = _rows([(10, 50), (30, 50)], [0.0, 1.0])  # two grasps side by side: both as near; the first row
+    (first,) = format_sample(_sample(tie), FormatConfig(target_grasp="top", individual=False))
+    assert first.grasp[4] == 0.0
+    with pytest.raises(ValueError, match="target_grasp"):
+        FormatConfig(target_grasp="nearest")
+
+
 def test_centre_on_the_edge_prints_inside():
     grasp = np.array([[223.7, 0.2, 30.0, 10.0, 0.0]])
     (example,) = format_sample(_sample(grasp), FormatConfig(individual=False))

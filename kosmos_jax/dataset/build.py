@@ -436,7 +436,7 @@ def define_flags(flag_values: flags.FlagValues) -> None:
     define("bool", "joint", False, "one example with the whole grasp (default: centre and angle apart)")
     define("enum", "loss_on", "target", "tokens the loss is on", enum_values=["target", "instruction"])
     define("enum", "target_grasp", "random", "which ground-truth grasp a sample answers with",
-           enum_values=["first", "each", "random"])
+           enum_values=["first", "each", "random", "top"])
     define("enum", "numbers", "digits", "how coordinates are written", enum_values=["digits", "values"])
     define("integer", "max_length", 192, "tokens per example, image slots included")
     define("enum", "overflow", "error", "an example longer than --max_length", enum_values=["error", "truncate"])

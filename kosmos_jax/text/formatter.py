@@ -11,7 +11,10 @@ Settings (`FormatConfig`), after the paper's ablations (Tables IV and V):
 - loss_on: "target" (the answer and </s>) or "instruction" (every text token after </image>).
 - target_grasp: which of a sample's answering grasps become targets: "first" (row 0: for angle
   and part instructions the grasp the sentence was made from), "each" (one example per grasp)
-  or "random" (one, drawn with the given generator).
+  or "random" (one, drawn with the given generator), or "top" (one, a function of the grasps' centres: the
+  grasp nearest the point that lies one spread above their mean, so a ring answers with its top, a bar
+  lying across the view with its middle, and the answer to an angle question asked without the location is
+  one angle, not a mixture of the angles around a rim).
 An angle instruction already states the angle, so its answer is the location only.
 
 The text of a location is `grasp_text.format_grasp`'s, less the angle: it keeps every printed
@@ -31,7 +34,7 @@ from kosmos_jax.grasp_text import split_cue  # also formatter.split_cue, for the
 
 LOSS_MODES = ("target", "instruction")
 OVERFLOW_MODES = ("error", "truncate")
-TARGET_CHOICES = ("first", "each", "random")
+TARGET_CHOICES = ("first", "each", "random", "top")
 PARTS = ("grasp", "location", "angle")
 
 # which of (x, y, w, h, theta) the text of each part states, by representation
@@ -144,7 +147,19 @@ def prompt_cues(config: FormatConfig, answer: str = "grasp") -> list[tuple[str, 
     return [(part, cue) for part, cue, _, _ in grasp_parts(probe, answer, config)]
 
 
-def _chosen_rows(count: int, config: FormatConfig, rng: np.random.Generator | None) -> list[int]:
+def top_row(grasps: np.ndarray) -> int:
+    """The row of the grasp nearest mean(centres) - (0, spread), spread the largest distance of a centre from
+    the mean (image y grows downwards); the first such row on a tie."""
+    centres = np.asarray(grasps, np.float64)[:, :2]
+    mean = centres.mean(axis=0)
+    spread = float(np.max(np.linalg.norm(centres - mean, axis=1)))
+    return int(np.argmin(np.linalg.norm(centres - (mean - np.array([0.0, spread])), axis=1)))
+
+
+def _chosen_rows(grasps: np.ndarray, config: FormatConfig, rng: np.random.Generator | None) -> list[int]:
+    count = grasps.shape[0]
+    if config.target_grasp == "top":
+        return [top_row(grasps)]
     if config.target_grasp == "first":
         return [0]
     if config.target_grasp == "each":
@@ -160,7 +175,7 @@ def format_sample(sample, config: FormatConfig, rng: np.random.Generator | None 
     if answers.ndim != 2 or answers.shape[1] != 5 or answers.shape[0] == 0:
         raise ValueError(f"sample of photos {sample.photo_ids} has no grasps to answer with (shape {answers.shape})")
     examples = []
-    for row in _chosen_rows(answers.shape[0], config, rng):
+    for row in _chosen_rows(answers, config, rng):
         grasp = answers[row]
         for part, cue, value, mask in grasp_parts(grasp, sample.answer, config):
             examples.append(
