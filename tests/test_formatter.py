@@ -123,10 +123,10 @@ def test_top_target_is_a_function_of_the_grasps_whatever_their_order(order):
     """A ring's rim grasps answer with the top one, a lying bar's with its middle, a standing bar's with its
     upper end (image y grows downwards), whichever row each is in."""
     ring = [(100 + 30 * np.cos(t), 120 + 30 * np.sin(t)) for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
-    ring_angles = [(t + np.pi / 2 + np.pi / 2) % np.pi - np.pi / 2 for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
-    cases = [(ring, ring_angles, (100.0, 90.0)),
-             ([(60 + 20 * i, 100) for i in range(7)], [1.5] * 7, (120.0, 100.0)),
-             ([(100, 50 + 20 * i) for i in range(5)], [0.0] * 5, (100.0, 50.0))]
+    lying, standing = [(60 + 20 * i, 100) for i in range(7)], [(100, 50 + 20 * i) for i in range(5)]
+    # every grasp its own angle, so that the angle example shows which grasp it came from
+    cases = [(centres, np.linspace(-1.5, 1.5, len(centres)), expected)
+             for centres, expected in ((ring, (100.0, 90.0)), (lying, (120.0, 100.0)), (standing, (100.0, 50.0)))]
     for centres, angles, expected in cases:
         grasps = np.random.default_rng(order).permutation(_rows(centres, angles))
         (location, angle) = format_sample(_sample(grasps), FormatConfig(target_grasp="top"))

@@ -62,7 +62,7 @@ from kosmos_jax.dataset.checks import BuildCheckError, check_example, check_sepa
 from kosmos_jax.dataset.inputs import RULE_KINDS, WordSource, object_words, read_photos, word_source, words_unknown
 from kosmos_jax.dataset.views import augment_config, count_views, make_views
 from kosmos_jax.text import layout
-from kosmos_jax.text.formatter import FormatConfig, format_sample
+from kosmos_jax.text.formatter import LOSS_MODES, OVERFLOW_MODES, TARGET_CHOICES, FormatConfig, format_sample
 from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
 
 # BuildConfig fields that say where and whether to write, not what: left out of the identity
@@ -434,12 +434,12 @@ def define_flags(flag_values: flags.FlagValues) -> None:
     define("enum", "representation", "xya", "grasp text", enum_values=list(grasp_text.REPRESENTATIONS))
     define("bool", "angle_code", True, "angles as the 256-bin code (--noangle_code: in radians)")
     define("bool", "joint", False, "one example with the whole grasp (default: centre and angle apart)")
-    define("enum", "loss_on", "target", "tokens the loss is on", enum_values=["target", "instruction"])
+    define("enum", "loss_on", "target", "tokens the loss is on", enum_values=list(LOSS_MODES))
     define("enum", "target_grasp", "random", "which ground-truth grasp a sample answers with",
-           enum_values=["first", "each", "random", "top"])
+           enum_values=list(TARGET_CHOICES))
     define("enum", "numbers", "digits", "how coordinates are written", enum_values=["digits", "values"])
     define("integer", "max_length", 192, "tokens per example, image slots included")
-    define("enum", "overflow", "error", "an example longer than --max_length", enum_values=["error", "truncate"])
+    define("enum", "overflow", "error", "an example longer than --max_length", enum_values=list(OVERFLOW_MODES))
     define("string", "tokenizer", None, "an existing SentencePiece model (KOSMOS-2's), ids in fairseq's scheme")
     define("enum", "tokenizer_scheme", "fairseq", "ids of --tokenizer: fairseq (KOSMOS-2's) or native (a "
            "tokenizer.model a build or run wrote)", enum_values=["fairseq", "native"])

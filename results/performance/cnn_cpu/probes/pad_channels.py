@@ -1,5 +1,5 @@
 """9x9 convolutions at 224 px, batch 8: output channels zero-padded to 17, 20 or 24 (and cut) so that YNNPACK takes them; forward, input and kernel gradient apart (ms, best of 3). Run: .venv/bin/python results/performance/cnn_cpu/probes/pad_channels.py"""
-import sys, json
+import sys
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[4] / "benchmarks"))
 import jax, jax.numpy as jnp
 from timing import interleaved_times
