@@ -130,6 +130,7 @@ def main() -> None:
     parser.add_argument("--peer-size", type=int, default=4096, help="side of the peer matmul")
     parser.add_argument("--out", type=pathlib.Path, help="also write the record to this JSON file")
     args = parser.parse_args()
+    jax.config.update("jax_enable_compilation_cache", False)  # compile_s times a compile, never a cache read
     if args.batch < 1 or args.length < 2:
         parser.error("--batch must be >= 1 and --length >= 2")
     report = record(args)

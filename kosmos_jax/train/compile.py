@@ -353,6 +353,7 @@ def planned_runs(config: ml_collections.ConfigDict, topology_name: str | None,
 
 
 def compile_command(options) -> int:
+    jax.config.update("jax_enable_compilation_cache", False)  # compile_s times a compile, never a cache read
     plans = []
     try:
         for config, topology in planned_runs(options.config, options.topology, options.plan):
