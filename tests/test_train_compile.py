@@ -24,8 +24,8 @@ def _config(variant):
     return load_config(f"configs/kosmos_e.py:{variant}")
 
 
-def _run(*args, timeout=60):
-    env = {**os.environ, "GLIBC_TUNABLES": os.environ.get("GLIBC_TUNABLES", "glibc.malloc.hugetlb=1")}
+def _run(*args, timeout=60, **extra_env):
+    env = {**os.environ, "GLIBC_TUNABLES": os.environ.get("GLIBC_TUNABLES", "glibc.malloc.hugetlb=1"), **extra_env}
     return subprocess.run([*COMMAND, *args], cwd=REPO, env=env, capture_output=True, text=True, timeout=timeout)
 
 
@@ -141,8 +141,10 @@ def test_mesh_that_does_not_divide_the_devices_is_refused():
 
 
 @pytest.mark.slow  # 34 s (make test's --durations, 2026-11-28, 2 cores)
-def test_compile_command_on_eight_cpu_devices():
-    done = _run("--topology=cpu:8", "--json", "--config.mesh.data=2", "--config.mesh.fsdp=4", timeout=600)
+def test_compile_command_on_eight_cpu_devices(tmp_path):
+    cache = tmp_path / "jax-cache"  # a user's persistent cache, set to keep every compile
+    done = _run("--topology=cpu:8", "--json", "--config.mesh.data=2", "--config.mesh.fsdp=4", timeout=600,
+                JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["topology"] == "cpu:8" and result["devices"] == 8
@@ -157,6 +159,7 @@ def test_compile_command_on_eight_cpu_devices():
     assert result["model_flops"]["model"] == model
     assert result["xla_flops"] > model  # XLA counts the image's resize and elementwise work too
     assert result["compile_s"] > 0 and (result["batch_size"], result["max_length"]) == (8, 96)
+    assert not cache.exists() or not any(cache.iterdir())  # compile_s timed a compile: nothing read or kept
 
 
 @pytest.mark.slow  # 14 s (make test's --durations, 2026-11-28, 2 cores)
