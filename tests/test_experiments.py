@@ -563,6 +563,26 @@ def test_the_cornell_data_sweep_fine_tunes_the_grounding_start_on_more_and_more_
     assert (config.schemes, config.protocols) == ("image,object", "honest")
 
 
+def test_the_cornell_epochs_sweep_scales_the_schedule_with_the_views_and_shares_the_four_view_arm():
+    """Each arm makes the same passes over its views (100 steps and 25 warm-up steps a view); else as cornell_grounded."""
+    fixed = spec.load_config("configs/experiments/data_size.py:cornell_grounded")
+    config = spec.load_config("configs/experiments/data_size.py:cornell_grounded_epochs")
+    assert spec.arm_names(config) == ["cornell_aug2_steps200", "cornell_aug4", "cornell_aug8_steps800",
+                                      "cornell_aug16_steps1600"]
+    assert (config.folds, config.schemes, config.protocols) == (fixed.folds, fixed.schemes, fixed.protocols)
+    for name in spec.arm_names(config):
+        built = spec.arm_config(config, name)
+        views = built.data.build.augmentations
+        same_steps = spec.arm_config(fixed, f"cornell_aug{views}")
+        assert (built.train.steps, built.optimizer.warmup_steps) == (100 * views, 25 * views)
+        assert built.train.steps * built.train.batch_size / views == 3200  # examples a view of a photo
+        assert built.data == same_steps.data and built.model == same_steps.model
+        assert built.optimizer.peak_lr == same_steps.optimizer.peak_lr and built.init_from == same_steps.init_from
+        # the 4-view arm is cornell_grounded's own, overrides and recipe: its fold records serve both sweeps
+        shared = config.arms[name].overrides == fixed.arms[f"cornell_aug{views}"].overrides
+        assert shared == (spec.recipe(built) == spec.recipe(same_steps)) == (views == 4)
+
+
 def test_the_scratch_data_sweep_is_the_pretrained_one_without_its_start():
     """The same arms, data, steps and folds as cpu_pretrained; the from-scratch recipe's model and rate."""
     scratch_recipe = spec.load_config("configs/kosmos_e.py:demo_photos")

@@ -29,6 +29,11 @@ cornell_grounded: the paper's own Fig. 6 setting, the Cornell photos with more a
 8 and 16 a photo), each arm `make demo`'s fine-tune (configs/kosmos_e.py:demo_grounded: 400 steps of 32 at
 peak rate 3e-4) from the committed grounding start (pretrained on synthetic scenes only, never a Cornell
 photo), instruction kind NON, honest protocol, image- and object-wise folds 0 and 1.
+cornell_grounded_epochs: cornell_grounded with the schedule in proportion to the views (100 steps and 25
+warm-up steps a view of each photo: 200 steps for 2 views, 1,600 for 16), so every arm makes the same number
+of passes over its training views; the 4-view arm is cornell_grounded's own (its fold records serve both:
+--records_from=results/data_size_cornell/folds), the others are named by their steps (cornell_aug16_steps1600).
+At a fixed 400 steps more views are also fewer passes: this variant separates the two.
 paper: Cornell with KOSMOS-E's annotations (configs/kosmos_e.py:paper, KOSMOS-2 initialisation:
 --config.init_from), augmentations 4, 8, 16, 32; and synthetic scenes of kind NON, 16
 augmentations, 100 to 10,000 photos; both protocols, every fold.
@@ -41,9 +46,10 @@ tell them from today's recipe, so a rerun must not carry them in.
 from kosmos_jax.experiments.spec import GROUNDING_START, SHIPPED_START, arm, experiment
 
 CPU_STEPS = 200
-VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_scratch", "cornell_grounded", "paper")
+VARIANTS = ("cpu", "cpu_demo", "cpu_pretrained", "cpu_scratch", "cornell_grounded", "cornell_grounded_epochs", "paper")
 PHOTO_COUNTS = (150, 300, 600, 1200)  # cpu_pretrained's and cpu_scratch's arms
 CORNELL_AUGMENTATIONS = (2, 4, 8, 16)  # cornell_grounded's arms
+STEPS_A_VIEW, WARMUP_A_VIEW = 100, 25  # cornell_grounded_epochs: at 4 views, make demo's own 400 and 100
 
 
 def get_config(arg: str | None = None):
@@ -79,11 +85,19 @@ def get_config(arg: str | None = None):
         arms = {f"photos{p}_aug4": arm("configs/kosmos_e.py:demo_photos", {
             "data.synthetic_photos": p, "data.build.kinds": "non"}, series="photos") for p in PHOTO_COUNTS}
         return experiment("data_size", arms, schemes="image", protocols="honest", folds="0,1,2", data_size_plot=True)
-    if variant == "cornell_grounded":
+    if variant in ("cornell_grounded", "cornell_grounded_epochs"):
+        def schedule(views: int) -> dict:
+            if variant == "cornell_grounded" or views == 4:  # no overrides: the arm and its records are shared
+                return {}
+            return {"train.steps": STEPS_A_VIEW * views, "optimizer.warmup_steps": WARMUP_A_VIEW * views}
+
+        def name(views: int) -> str:  # an arm of its own schedule has a name of its own
+            return f"cornell_aug{views}" + (f"_steps{STEPS_A_VIEW * views}" if schedule(views) else "")
+
         # NON texts are short: the demo's own 88 tokens rather than the mosaics' 128
-        arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:demo_grounded", {
+        arms = {name(a): arm("configs/kosmos_e.py:demo_grounded", {
             "data.source": "cornell", "data.build.kinds": "non", "data.build.max_length": 88,
-            "data.build.augmentations": a, "init_from": GROUNDING_START}, series="augmentations")
+            "data.build.augmentations": a, "init_from": GROUNDING_START, **schedule(a)}, series="augmentations")
             for a in CORNELL_AUGMENTATIONS}
         return experiment("data_size", arms, schemes="image,object", protocols="honest", folds="0,1", data_size_plot=True)
     arms = {f"cornell_aug{a}": arm("configs/kosmos_e.py:paper", {"data.build.augmentations": a}, series="augmentations")
