@@ -27,14 +27,10 @@ from kosmos_jax.workdir.run import open_run
 SCALE = 2
 
 
-def test_view(photo: np.ndarray, size: int) -> np.ndarray:
-    top, left = (photo.shape[0] - size) // 2, (photo.shape[1] - size) // 2
-    view = photo[top:top + size, left:left + size]
-    return cv2.resize(view, None, fx=SCALE, fy=SCALE, interpolation=cv2.INTER_NEAREST)
-
-
-def drawn(view: np.ndarray, truths: np.ndarray, answer: np.ndarray) -> np.ndarray:
-    view = view.copy()
+def drawn(image: np.ndarray, truths: np.ndarray, answer: np.ndarray) -> np.ndarray:
+    """The RGB view doubled, as BGR for cv2, with the truths' centres and the answer marked."""
+    view = cv2.resize(cv2.cvtColor(image, cv2.COLOR_RGB2BGR), None, fx=SCALE, fy=SCALE,
+                      interpolation=cv2.INTER_NEAREST)
     for x, y in truths[:, :2] * SCALE:
         cv2.circle(view, (int(x), int(y)), 3, (0, 200, 0), -1)
     cv2.drawMarker(view, tuple(int(v) for v in answer[:2] * SCALE), (0, 0, 255), cv2.MARKER_CROSS, 12, 2)
@@ -53,7 +49,8 @@ def main() -> None:
     step = chosen_step(args.workdir, None)
     records, _, folder = scored_records(run, step, args.scored)
     categories = photo_categories(folder)
-    photo_of = lambda instruction: text(records[min(instruction.examples.values())]["photo_ids"][0])
+    record_of = lambda instruction: records[min(instruction.examples.values())]
+    photo_of = lambda instruction: text(record_of(instruction)["photo_ids"][0])
     single = [i for i in group_instructions(records) if i.scene == "single" and categories[photo_of(i)] == args.category]
     if not single:
         raise SystemExit(f"error: no single-photo instruction of category {args.category!r} in {args.scored}")
@@ -62,14 +59,14 @@ def main() -> None:
     to_nearest = np.hypot(*(nearest_truths(single, grasps)[:, :2] - grasps[:, :2]).T)[parsed]
     print(f"{args.category}: {parsed.sum()} of {len(single)} answers parse; answered centre to the nearest "
           f"ground-truth centre: median {np.median(to_nearest):.1f} px")
-    size = run.format_config.image_size
     tiles = []
     for instruction, grasp in zip(single, grasps):
         if len(tiles) == args.photos:
             break
         if np.isfinite(grasp).all():
-            photo = cv2.imread(str(next(pathlib.Path(folder).rglob(photo_of(instruction) + "r.png"))))
-            tiles.append(drawn(test_view(photo, size), instruction.answers, grasp))
+            tiles.append(drawn(record_of(instruction)["image"], instruction.answers, grasp))
+    if not tiles:
+        raise SystemExit(f"error: no answer of category {args.category!r} parses; nothing to draw")
     cv2.imwrite(args.out, np.concatenate(tiles, axis=1), [cv2.IMWRITE_JPEG_QUALITY, 80])
     print(f"wrote {args.out}: {len(tiles)} photos")
 
