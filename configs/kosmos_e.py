@@ -90,6 +90,8 @@ def model_config(size: str, vision: dict | None = None, text: dict | None = None
     model.latent_query_num = 64  # must equal the prompt's 64 image slots
     model.compute_dtype = "float32"
     model.remat = False
+    model.dropout_mask_bits = 32  # 16 or 8: the dropout masks from fewer random bits (the rate rounded)
+    model.remat_policy = "full"  # under remat: "dots" keeps the dense layers' outputs (more memory, less recomputed)
     model.scan_layers = False
     model.attention = "einsum"  # or "fused": jax.nn.dot_product_attention (cuDNN's flash kernel on a GPU)
     model.magneto_init = True

@@ -56,19 +56,22 @@ def resize_matmul_flops() -> int:
     return program_matmul_flops(jax.make_jaxpr(lambda x: pixels(x, size))(images(config)).jaxpr)
 
 
-def tiny_step(scan_layers=False, remat=False, microbatches=1):
+def tiny_step(scan_layers=False, remat=False, microbatches=1, remat_policy="full"):
     config = _config("tiny")
     config.model.scan_layers, config.model.remat, config.train.microbatches = scan_layers, remat, microbatches
+    config.model.remat_policy = remat_policy
     return config, train_compile.trainer_step(config, make_mesh(1, 1, 1, devices=jax.devices()[:1]))
 
 
-@pytest.mark.parametrize("scan_layers, remat, microbatches", [
-    (False, False, 1), (True, False, 1), (False, True, 1), (True, True, 2),
+@pytest.mark.parametrize("scan_layers, remat, microbatches, remat_policy", [
+    (False, False, 1, "full"), (True, False, 1, "full"), (False, True, 1, "full"), (True, True, 2, "full"),
+    (False, True, 1, "dots"), (True, True, 1, "dots"),
 ])
-def test_the_count_is_that_of_the_steps_matmuls(scan_layers, remat, microbatches):
+def test_the_count_is_that_of_the_steps_matmuls(scan_layers, remat, microbatches, remat_policy):
     # Exact: the backward is twice the forward but for the patch embedding (no gradient for the image),
-    # and remat recomputes each block less its fc2, whose output the backward does not need.
-    config, built = tiny_step(scan_layers, remat, microbatches)
+    # and remat recomputes each block less its fc2, whose output the backward does not need; under the
+    # "dots" policy only attention's batched products.
+    config, built = tiny_step(scan_layers, remat, microbatches, remat_policy)
     program = program_matmul_flops(jax.make_jaxpr(built.step)(built.state, built.batch).jaxpr)
     flops = train_compile.model_flops(config)
     assert program - resize_matmul_flops() == flops.executed
@@ -112,3 +115,8 @@ def test_xla_flops_where_the_backend_gives_them():
     assert xla_flops(Compiled([{"flops": 5.0}])) == 5.0
     for nothing in (None, [], {}, {"bytes accessed": 9.0}, {"flops": None}, NotImplementedError("no cost model")):
         assert xla_flops(Compiled(nothing)) is None
+
+
+def test_an_unknown_remat_policy_is_refused():
+    with pytest.raises(ValueError, match="remat_policy must be one of .*'offload'"):
+        model_sizes.TINY.replace(remat_policy="offload")

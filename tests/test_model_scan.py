@@ -157,13 +157,14 @@ def test_gradients_are_the_same_with_remat_and_scan_and_remat_checkpoints_every_
     checkpoints, plain_loss, plain_grads = loss_and_grads(load())
     assert checkpoints == 0
     blocks = TINY.text.layers + TINY.vision.num_hidden_layers
-    for scan, remat, expected in ((False, True, blocks), (True, False, 0), (True, True, 2)):  # 2: one a scan body
-        checkpoints, value, grads = loss_and_grads(load(scan_layers=scan, remat=remat))
-        assert checkpoints == expected, (scan, remat)
+    for scan, remat, policy, expected in ((False, True, "full", blocks), (True, False, "full", 0),
+                                          (True, True, "full", 2), (True, True, "dots", 2)):  # 2: one a scan body
+        checkpoints, value, grads = loss_and_grads(load(scan_layers=scan, remat=remat, remat_policy=policy))
+        assert checkpoints == expected, (scan, remat, policy)
         np.testing.assert_allclose(value, plain_loss, rtol=1e-6)
         assert grads.keys() == plain_grads.keys()
         for path, grad in plain_grads.items():
-            np.testing.assert_allclose(grads[path], grad, rtol=1e-5, atol=1e-7, err_msg=f"{scan=} {remat=} {path}")
+            np.testing.assert_allclose(grads[path], grad, rtol=1e-5, atol=1e-7, err_msg=f"{scan=} {remat=} {policy=} {path}")
 
 
 def test_cached_greedy_decoding_gives_the_same_tokens_in_both_layouts(ref):

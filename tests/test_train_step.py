@@ -341,6 +341,28 @@ def test_a_rows_dropout_mask_follows_its_example_id_not_its_place():
         assert nnx.clone(dropout)(ones, deterministic=True) is ones
 
 
+@pytest.mark.parametrize("mask_bits", [16, 8])
+def test_masks_from_fewer_bits_drop_the_rounded_rate_and_follow_their_example(mask_bits):
+    dropout = layers.Dropout(0.1, rngs=nnx.Rngs(dropout=5))
+    ones = jnp.ones((4, 64, 1024), jnp.float32)
+    ids = jnp.asarray([7, 8, 9, 10])
+
+    def masks(ids, rows=ones, bits=mask_bits):
+        with layers.dropout_per_example(ids, bits):
+            return np.asarray(nnx.clone(dropout)(rows))
+
+    out = masks(ids)
+    dropped = round(0.1 * 2**mask_bits) / 2**mask_bits  # 0.1 rounded to the bits' resolution
+    kept = np.unique(out[out != 0])
+    np.testing.assert_allclose(kept, [1 / (1 - dropped)], rtol=1e-6)  # one float32 value: 1/keep
+    # 262,144 draws: the dropped share within 5 standard deviations of the rounded rate
+    assert abs(np.mean(out == 0) - dropped) < 5 * np.sqrt(dropped * (1 - dropped) / out.size)
+    np.testing.assert_array_equal(masks(ids[::-1], ones), out[::-1])
+    assert not np.array_equal(masks(ids, bits=32) == 0, out == 0)  # other bits, other masks
+    with pytest.raises(ValueError, match="mask_bits must be one of"):
+        masks(ids, bits=4)
+
+
 @pytest.mark.slow  # 38 s (make test's --durations, 2026-11-27, 2 cores)
 def test_a_rows_dropout_follows_its_example_through_the_train_step():
     """The loss (of the parameters before the update: dropout noise only) of a batch and of the same

@@ -270,7 +270,8 @@ ADDED_AT = {"init_step": -1, "data.build.tokenizer_scheme": "fairseq", "data.str
             "train.tower_category_loss": 0.0, "train.tower_colour_loss": 0.0, "data.stream.kinds": "",
             "model.connector_instruction": False,
             "train.answer_pointing_loss": 0.0, "data.validation_fraction": 0.0,
-            "data.stream.examples": 0, "train.grasp_eval_at_end": True}
+            "data.stream.examples": 0, "train.grasp_eval_at_end": True,
+            "model.remat_policy": "full", "model.dropout_mask_bits": 32}
 
 
 def recipe(fold_config) -> str:

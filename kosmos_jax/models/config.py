@@ -55,6 +55,7 @@ class TextConfig:
 
 
 ATTENTION_KERNELS = ("einsum", "fused")
+REMAT_POLICIES = ("full", "dots")
 # config.json of a model transformers' KOSMOS-2 cannot compute (a grid code in its connector): a model
 # type transformers does not know, so it refuses the folder instead of computing other embeddings.
 EXTENDED_MODEL_TYPE = "kosmos_jax-kosmos-2"
@@ -90,6 +91,13 @@ class Kosmos2Config:
     # jax.jit/grad/lax.scan, call a model merged there (nnx.merge(..., copy=True) for closed-over state).
     scan_layers: bool = False
     remat: bool = False  # recompute each block's activations in the backward pass (less memory)
+    # Under remat, what a block keeps for its backward pass: "full" nothing (its whole forward runs
+    # again); "dots" the outputs of its dense layers (matmuls without batch dimensions), so that only
+    # attention's batched products, the norms, activations and dropout are computed again.
+    remat_policy: str = "full"
+    # Random bits a training dropout mask draws an element (layers.dropout_per_example): 32 (a float32
+    # uniform, the exact rate), 16 or 8 (the rate rounded to 1/65536 or 1/256; fewer bits to make).
+    dropout_mask_bits: int = 32
     # "einsum": scores [B, H, T, S] made and kept in float32 (the program is plain XLA everywhere);
     # "fused": jax.nn.dot_product_attention, which picks cuDNN's flash kernel on a GPU where it can
     # (no scores kept) and XLA's elsewhere. An active attention dropout takes the einsum path: the
@@ -116,6 +124,10 @@ class Kosmos2Config:
     def __post_init__(self):
         if self.attention not in ATTENTION_KERNELS:
             raise ValueError(f"attention must be one of {ATTENTION_KERNELS}, got {self.attention!r}")
+        if self.dropout_mask_bits not in (32, 16, 8):
+            raise ValueError(f"dropout_mask_bits must be 32, 16 or 8, got {self.dropout_mask_bits!r}")
+        if self.remat_policy not in REMAT_POLICIES:
+            raise ValueError(f"remat_policy must be one of {REMAT_POLICIES}, got {self.remat_policy!r}")
 
     def with_vocab_size(self, vocab_size: int) -> "Kosmos2Config":
         return self.replace(text=dataclasses.replace(self.text, vocab_size=vocab_size))

@@ -122,11 +122,12 @@ def _block_step(layer: TextBlock, x, layer_cache, mask, index):
 
 class TextTransformer(nnx.Module):
     def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, *,
-                 scan_layers: bool = False, remat: bool = False, attention: str = "einsum"):
+                 scan_layers: bool = False, remat: bool = False, remat_policy: str = "full", attention: str = "einsum"):
         self.cfg = cfg
         self.dtype = dtype
         self.scan_layers = scan_layers
         self.remat = remat
+        self.remat_policy = remat_policy
         self.embed_scale = math.sqrt(cfg.embed_dim) if cfg.scale_embedding else 1.0
         # std d^-0.5: the scaled embedding has unit variance (fairseq's choice for tied embeddings)
         self.embed_tokens = nnx.Embed(
@@ -165,7 +166,7 @@ class TextTransformer(nnx.Module):
             causal = slots[None, :] <= (index + jnp.arange(t))[:, None]
             mask = causal[None, None] & valid[:, None, None, :]
             new_cache = {"k": [], "v": [], "valid": valid, "index": index + t}
-        block = rematerialised(_block_step, self.remat, in_scan=self.scan_layers)
+        block = rematerialised(_block_step, self.remat, in_scan=self.scan_layers, policy=self.remat_policy)
         if self.scan_layers:
             stacked_cache = None if cache is None else (cache["k"], cache["v"])
             x, stacked_cache = scan_blocks(block, self.layers, x, stacked_cache, mask, index)
@@ -185,7 +186,7 @@ class TextForCausalLM(nnx.Module):
     """`text_model`: the decoder plus the LM head tied to `embed_tokens` (no parameter of its own)."""
 
     def __init__(self, cfg: TextConfig, dtype, rngs: nnx.Rngs, magneto_gain: float = 1.0, **layout):
-        """`layout`: TextTransformer's scan_layers, remat and attention."""
+        """`layout`: TextTransformer's scan_layers, remat, remat_policy and attention."""
         self.model = TextTransformer(cfg, dtype, rngs, magneto_gain, **layout)
 
     def logits(self, hidden):

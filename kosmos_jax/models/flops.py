@@ -82,8 +82,12 @@ def train_flops(cfg: Kosmos2Config, batch_size: int, length: int) -> TrainFlops:
     # Remat recomputes a block's forward for its backward, less the block's last matmul (fc2): the
     # backward needs that matmul's input, not its output, so jax leaves it out of the recomputation.
     vision_fc2, decoder_fc2 = 2 * tokens * vision.intermediate_size * width, 2 * length * text.ffn_dim * d
-    recomputed = (vision.num_hidden_layers * (vision_block + vision_attention - vision_fc2)
-                  + text.layers * (decoder_block + decoder_attention - decoder_fc2))
+    # Under the "dots" policy the dense layers' outputs are kept: only attention's products run again.
+    if cfg.remat_policy == "dots":
+        recomputed = vision.num_hidden_layers * vision_attention + text.layers * decoder_attention
+    else:
+        recomputed = (vision.num_hidden_layers * (vision_block + vision_attention - vision_fc2)
+                      + text.layers * (decoder_block + decoder_attention - decoder_fc2))
     return TrainFlops(
         patch_embedding=batch_size * 2 * vision.num_patches * vision.num_channels * vision.patch_size**2 * width,
         vision_matmuls=batch_size * vision.num_hidden_layers * vision_block,

@@ -22,7 +22,8 @@ from kosmos_jax.models.vision import VisionModel
 class Kosmos2(nnx.Module):
     def __init__(self, cfg: Kosmos2Config, rngs: nnx.Rngs):
         self.config = cfg
-        layout = dict(scan_layers=cfg.scan_layers, remat=cfg.remat, attention=cfg.attention)
+        layout = dict(scan_layers=cfg.scan_layers, remat=cfg.remat, remat_policy=cfg.remat_policy,
+                      attention=cfg.attention)
         self.text_model = TextForCausalLM(cfg.text, cfg.dtype, rngs, cfg.magneto_gain, **layout)
         self.vision_model = VisionModel(cfg.vision, cfg.dtype, rngs, **layout)
         self.image_to_text_projection = projection(cfg, rngs)

@@ -48,14 +48,21 @@ class LayerNorm(nnx.LayerNorm):
 _EXAMPLE_IDS: contextvars.ContextVar = contextvars.ContextVar("kosmos_jax_dropout_example_ids", default=None)
 
 
+MASK_BITS = (32, 16, 8)
+
+
 @contextlib.contextmanager
-def dropout_per_example(example_ids: jax.Array):
+def dropout_per_example(example_ids: jax.Array, mask_bits: int = 32):
     """Within it, every `Dropout` draws each row of its input from its own key: row b's mask from
     fold_in(k, example_ids[b]), k being the layer's key for this call. A row's mask then follows its
     example, not its place in the batch, the batch's size, its microbatches or how many processes
     hold it. `example_ids` int [B] (the batch's `example_index`) is read when a Dropout is called
-    (traced under jit), so the forward pass runs inside the block."""
-    token = _EXAMPLE_IDS.set(example_ids)
+    (traced under jit), so the forward pass runs inside the block. `mask_bits` 32 draws a float32
+    uniform an element (jax.random.bernoulli); 16 or 8 compare that many random bits with the rate
+    rounded to 1/2^bits, and cost a half or a quarter of the random bits."""
+    if mask_bits not in MASK_BITS:
+        raise ValueError(f"mask_bits must be one of {MASK_BITS}, got {mask_bits!r}")
+    token = _EXAMPLE_IDS.set((example_ids, mask_bits))
     try:
         yield
     finally:
@@ -73,10 +80,11 @@ class Dropout(nnx.Dropout):
         return self.deterministic is False and self.rate > 0.0
 
     def __call__(self, inputs, *, deterministic: bool | None = None, rngs=None):
-        example_ids = _EXAMPLE_IDS.get()
+        per_example = _EXAMPLE_IDS.get()
         deterministic = self.deterministic if deterministic is None else deterministic
-        if example_ids is None or deterministic is not False or self.rate in (0.0, 1.0):
+        if per_example is None or deterministic is not False or self.rate in (0.0, 1.0):
             return super().__call__(inputs, deterministic=deterministic, rngs=rngs)
+        example_ids, mask_bits = per_example
         if 0 in self.broadcast_dims or inputs.shape[:1] != example_ids.shape:
             raise ValueError(f"per-example dropout needs the batch first: input {inputs.shape}, "
                              f"{example_ids.shape} example ids, broadcast_dims {self.broadcast_dims}")
@@ -84,10 +92,18 @@ class Dropout(nnx.Dropout):
         if isinstance(rngs, nnx.Rngs):
             rngs = rngs[self.rng_collection]
         key = rngs if isinstance(rngs, jax.Array) else rngs()  # a key, or the stream's next one
-        keep = 1.0 - self.rate
         row_shape = tuple(1 if dim in self.broadcast_dims else size for dim, size in enumerate(inputs.shape))[1:]
         keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, example_ids)
-        mask = jnp.broadcast_to(jax.vmap(lambda k: jax.random.bernoulli(k, keep, row_shape))(keys), inputs.shape)
+        if mask_bits == 32:
+            keep = 1.0 - self.rate
+            draw = lambda k: jax.random.bernoulli(k, keep, row_shape)
+        else:  # dropped where the bits fall below the rate's share of their 2^bits values
+            levels = 2**mask_bits
+            dropped = min(max(round(self.rate * levels), 1), levels - 1)
+            keep = 1.0 - dropped / levels
+            dtype = jnp.uint16 if mask_bits == 16 else jnp.uint8
+            draw = lambda k: jax.random.bits(k, row_shape, dtype) >= dropped
+        mask = jnp.broadcast_to(jax.vmap(draw)(keys), inputs.shape)
         return jax.lax.select(mask, inputs / keep, jnp.zeros_like(inputs))
 
 
@@ -160,10 +176,14 @@ def scan_blocks(call, blocks: nnx.Module, x, per_layer, *shared):
     return body(blocks, x, per_layer, *shared)
 
 
-def rematerialised(call, enabled: bool, in_scan: bool):
-    """`call` under nnx.remat when enabled: its activations are recomputed in the backward pass."""
+REMAT_SAVED = {"full": None, "dots": jax.checkpoint_policies.dots_with_no_batch_dims_saveable}
+
+
+def rematerialised(call, enabled: bool, in_scan: bool, policy: str = "full"):
+    """`call` under nnx.remat when enabled: its activations are recomputed in the backward pass, but
+    for those `policy` (a Kosmos2Config.remat_policy) keeps."""
     if not enabled:
         return call
     # Under scan the recomputation cannot be merged with the forward pass, so CSE need not be
     # blocked (jax.checkpoint's advice); blocking it there only costs speed.
-    return nnx.remat(call, prevent_cse=not in_scan)
+    return nnx.remat(call, prevent_cse=not in_scan, policy=REMAT_SAVED[policy])

@@ -91,9 +91,10 @@ def _encoder_step(layer, x, _per_layer):
 
 class VisionEncoder(nnx.Module):
     def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, *, scan_layers: bool = False, remat: bool = False,
-                 attention: str = "einsum"):
+                 remat_policy: str = "full", attention: str = "einsum"):
         self.scan_layers = scan_layers
         self.remat = remat
+        self.remat_policy = remat_policy
         if scan_layers:
             self.layers = stack_blocks(lambda r: VisionEncoderLayer(cfg, dtype, r, attention), cfg.num_hidden_layers, rngs)
         else:
@@ -101,9 +102,9 @@ class VisionEncoder(nnx.Module):
 
     def __call__(self, x):
         if self.scan_layers:
-            step = rematerialised(_encoder_step, self.remat, in_scan=True)
+            step = rematerialised(_encoder_step, self.remat, in_scan=True, policy=self.remat_policy)
             return scan_blocks(step, self.layers, x, None)[0]
-        block = rematerialised(VisionEncoderLayer.__call__, self.remat, in_scan=False)
+        block = rematerialised(VisionEncoderLayer.__call__, self.remat, in_scan=False, policy=self.remat_policy)
         for layer in self.layers:
             x = block(layer, x)
         return x
@@ -119,7 +120,7 @@ class VisionTransformer(nnx.Module):
 
 class VisionModel(nnx.Module):
     def __init__(self, cfg: VisionConfig, dtype, rngs: nnx.Rngs, **layout):
-        """`layout`: VisionEncoder's scan_layers, remat and attention."""
+        """`layout`: VisionEncoder's scan_layers, remat, remat_policy and attention."""
         self.model = VisionTransformer(cfg, dtype, rngs, **layout)
 
     def __call__(self, pixels: jax.Array) -> jax.Array:

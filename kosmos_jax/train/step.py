@@ -218,7 +218,7 @@ def make_train_step(model_config: Kosmos2Config, tx: optax.GradientTransformatio
 
     def accumulate(params, step, parts):
         def gradient(part):
-            with dropout_per_example(part["example_index"]):  # each row's masks from its own example's key
+            with dropout_per_example(part["example_index"], model_config.dropout_mask_bits):  # a row's masks: its example's key
                 grads, sums = jax.grad(loss_sum, has_aux=True)(params, part, dropout_key(seed, step))
             return jax.lax.with_sharding_constraint(grads, state_sharding.params), sums
 

@@ -25,4 +25,5 @@ def model_config(model: ml_collections.ConfigDict, vocab_size: int) -> model_con
                         scan_layers=model.scan_layers, connector_dense_std=model.get("connector_dense_std"),
                         connector_grid_code=model.get("connector_grid_code", 0.0),
                         connector_instruction=model.get("connector_instruction", False),
-                        attention=model.get("attention", "einsum"))
+                        attention=model.get("attention", "einsum"), remat_policy=model.get("remat_policy", "full"),
+                        dropout_mask_bits=model.get("dropout_mask_bits", 32))
