@@ -41,9 +41,10 @@ test-parity: setup
 	$(PY) -m pip install --quiet -e '.[test,parity]'
 	$(PY) -m pytest -q -p no:xdist tests/test_model_parity.py
 
-# benchmarks/cnn_cpu.py measures its peer in PyTorch, which .venv leaves out: its docstring says how to run it
+# benchmarks/cnn_cpu.py measures its peer in PyTorch, which .venv leaves out: its docstring says how to run it;
+# timing.py is the others' helper and trace_summary.py reads a trace step_mfu.py --profile wrote
 bench: setup
-	for b in benchmarks/*.py; do case $$b in benchmarks/timing.py|benchmarks/cnn_cpu.py) continue;; esac; \
+	for b in benchmarks/*.py; do case $$b in benchmarks/timing.py|benchmarks/cnn_cpu.py|benchmarks/trace_summary.py) continue;; esac; \
 		$(PY) $$b || exit 1; done
 
 # The TPU memory plan: the `paper` step compiled for v5e, v4 and v6e slices by libtpu, no TPU attached

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import math
 
 import jax
 import jax.numpy as jnp
@@ -101,10 +102,18 @@ class Dropout(nnx.Dropout):
             levels = 2**mask_bits
             dropped = min(max(round(self.rate * levels), 1), levels - 1)
             keep = 1.0 - dropped / levels
-            dtype = jnp.uint16 if mask_bits == 16 else jnp.uint8
-            draw = lambda k: jax.random.bits(k, row_shape, dtype) >= dropped
+            draw = lambda k: _split_bits(k, row_shape, mask_bits) >= dropped
         mask = jnp.broadcast_to(jax.vmap(draw)(keys), inputs.shape)
         return jax.lax.select(mask, inputs / keep, jnp.zeros_like(inputs))
+
+
+def _split_bits(key, shape: tuple[int, ...], bits: int) -> jax.Array:
+    """Uniform `bits`-bit integers of `shape`, 32 // bits from each 32-bit word drawn. (jax.random.bits
+    with a narrower dtype draws a whole word an element under jax's partitionable threefry: no saving.)"""
+    per_word, size = 32 // bits, math.prod(shape)
+    words = jax.random.bits(key, (-(-size // per_word),), jnp.uint32)
+    parts = [(words >> (bits * i)) & (2**bits - 1) for i in range(per_word)]
+    return jnp.stack(parts, axis=-1).reshape(-1)[:size].reshape(shape)
 
 
 def gelu_exact(x):

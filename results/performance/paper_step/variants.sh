@@ -34,6 +34,8 @@ done
 wait
 for name in b64_full b64_dots; do
   find /tmp/prof_$name -name 'perfetto_trace.json.gz' -exec cp {} $R/$name.perfetto_trace.json.gz \; 2>/dev/null
+  [[ -f $R/$name.perfetto_trace.json.gz ]] && $PY benchmarks/trace_summary.py $R/$name.perfetto_trace.json.gz --top 12 \
+    | tee $R/$name.trace_summary.txt
 done
 $PY - $R <<'PY'
 import json, pathlib, sys
