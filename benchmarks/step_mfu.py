@@ -195,7 +195,7 @@ def main() -> None:
                         help="override the decoder's attention dropout (the size's own by default)")
     parser.add_argument("--dropout", action=argparse.BooleanOptionalAction, default=True,
                         help="--no-dropout: every dropout rate 0 (what the masks cost)")
-    parser.add_argument("--dropout-mask-bits", type=int, default=32, choices=[32, 16, 8],
+    parser.add_argument("--dropout-mask-bits", type=int, default=32, choices=config_lib.DROPOUT_MASK_BITS,
                         help="random bits a dropout mask draws an element (Kosmos2Config.dropout_mask_bits)")
     parser.add_argument("--prng", default=None, choices=["threefry2x32", "rbg", "unsafe_rbg"],
                         help="jax's PRNG for the dropout masks (default: jax's own); rbg's masks do not follow "

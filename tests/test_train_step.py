@@ -363,6 +363,11 @@ def test_masks_from_fewer_bits_drop_the_rounded_rate_and_follow_their_example(ma
         masks(ids, bits=4)
 
 
+def test_an_unknown_dropout_mask_width_is_refused_by_the_model_config():
+    with pytest.raises(ValueError, match=r"dropout_mask_bits must be one of \(32, 16, 8\), got 12"):
+        TINY.replace(dropout_mask_bits=12)
+
+
 @pytest.mark.slow  # 38 s (make test's --durations, 2026-11-27, 2 cores)
 def test_a_rows_dropout_follows_its_example_through_the_train_step():
     """The loss (of the parameters before the update: dropout noise only) of a batch and of the same

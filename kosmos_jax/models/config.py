@@ -56,6 +56,7 @@ class TextConfig:
 
 ATTENTION_KERNELS = ("einsum", "fused")
 REMAT_POLICIES = ("full", "dots")
+DROPOUT_MASK_BITS = (32, 16, 8)  # layers.dropout_per_example's mask_bits
 # config.json of a model transformers' KOSMOS-2 cannot compute (a grid code in its connector): a model
 # type transformers does not know, so it refuses the folder instead of computing other embeddings.
 EXTENDED_MODEL_TYPE = "kosmos_jax-kosmos-2"
@@ -124,8 +125,8 @@ class Kosmos2Config:
     def __post_init__(self):
         if self.attention not in ATTENTION_KERNELS:
             raise ValueError(f"attention must be one of {ATTENTION_KERNELS}, got {self.attention!r}")
-        if self.dropout_mask_bits not in (32, 16, 8):
-            raise ValueError(f"dropout_mask_bits must be 32, 16 or 8, got {self.dropout_mask_bits!r}")
+        if self.dropout_mask_bits not in DROPOUT_MASK_BITS:
+            raise ValueError(f"dropout_mask_bits must be one of {DROPOUT_MASK_BITS}, got {self.dropout_mask_bits!r}")
         if self.remat_policy not in REMAT_POLICIES:
             raise ValueError(f"remat_policy must be one of {REMAT_POLICIES}, got {self.remat_policy!r}")
 

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
+from kosmos_jax.models.config import DROPOUT_MASK_BITS as MASK_BITS
 from kosmos_jax.models.sharding import constrain, logical
 
 ACT = ("batch", "length", "act_embed")  # [B, T, D]: the residual stream and the connector output
@@ -47,9 +48,6 @@ class LayerNorm(nnx.LayerNorm):
 
 
 _EXAMPLE_IDS: contextvars.ContextVar = contextvars.ContextVar("kosmos_jax_dropout_example_ids", default=None)
-
-
-MASK_BITS = (32, 16, 8)
 
 
 @contextlib.contextmanager
