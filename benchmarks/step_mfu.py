@@ -17,6 +17,7 @@ arrays and draws its weights on the host first (side by side), waits with --barr
 names are in DIR (each process's --out stem, written after its compile; a launcher adds the name of
 one that died), and holds the file's lock from placing its state to its last timed step, so no two
 time at once and none times beside a compile. Their compile times are then times under each other's load.
+--slots PATH:K lets at most K of them compile and draw weights at once (the host's memory).
 """
 
 from __future__ import annotations
@@ -105,6 +106,32 @@ def holding(lock: pathlib.Path | None):
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+@contextlib.contextmanager
+def one_of(slots: str | None):
+    """Inside, the lock of one of K files PATH.0 ... PATH.K-1 (`slots` is "PATH:K"; nothing without it)."""
+    if slots is None:
+        yield
+        return
+    path, _, count = slots.rpartition(":")
+    handles = [open(f"{path}.{i}", "a") for i in range(int(count))]
+    try:
+        while True:
+            for handle in handles:
+                try:
+                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    continue
+                try:
+                    yield
+                finally:
+                    fcntl.flock(handle, fcntl.LOCK_UN)
+                return
+            time.sleep(0.5)
+    finally:
+        for handle in handles:
+            handle.close()
+
+
 def measure(cfg, args) -> dict:
     """The step compiled for abstract arrays, then, under the lock, timed on real ones (and the peer)."""
     mesh = make_mesh(-1, 1, 1)
@@ -114,11 +141,12 @@ def measure(cfg, args) -> dict:
     host_batch = random_batch(cfg, args.batch, args.length)
     abstract_batch = {key: jax.ShapeDtypeStruct(value.shape, value.dtype, sharding=batch_sharding(mesh))
                       for key, value in host_batch.items()}
-    start = time.perf_counter()
-    compiled = step.lower(abstract_train_state(cfg, tx, mesh), abstract_batch).compile()
-    compile_s = time.perf_counter() - start
-    with jax.default_device(jax.devices("cpu")[0]):  # drawn on the host: no accelerator memory held while waiting
-        params = jax.tree.map(np.asarray, split_model(build(cfg))[1])
+    with one_of(args.slots):
+        start = time.perf_counter()
+        compiled = step.lower(abstract_train_state(cfg, tx, mesh), abstract_batch).compile()
+        compile_s = time.perf_counter() - start
+        with jax.default_device(jax.devices("cpu")[0]):  # drawn on the host: no accelerator memory held while waiting
+            params = jax.tree.map(np.asarray, split_model(build(cfg))[1])
     wait_at(args.barrier, args.out.stem if args.out else "step_mfu")
     with holding(args.lock):
         peer = matmul_rate(args.dtype, args.peer_size)
@@ -203,6 +231,7 @@ def main() -> None:
     parser.add_argument("--profile", type=pathlib.Path, help="trace one more step into this folder")
     parser.add_argument("--lock", type=pathlib.Path, help="time only while holding this file's lock")
     parser.add_argument("--barrier", help="DIR:N: before timing, wait until N processes have compiled")
+    parser.add_argument("--slots", help="PATH:K: at most K processes compile and draw weights at once")
     parser.add_argument("--repeats", type=int, default=5, help="timed steps; the best is kept")
     parser.add_argument("--peer-size", type=int, default=4096, help="side of the peer matmul")
     parser.add_argument("--out", type=pathlib.Path, help="also write the record to this JSON file")

@@ -2,7 +2,8 @@
 # One call of the device tool (issue 25): the paper-size train step (kosmos2, bfloat16, scan_layers,
 # 256 tokens, the paper's dropouts unless a variant says otherwise) in several variants, one process
 # and one JSON record each. All compile side by side, then each is timed alone (--lock, --barrier:
-# benchmarks/step_mfu.py). The two batch-64 remat variants also trace one step (perfetto).
+# benchmarks/step_mfu.py; at most SLOTS, 4, compile at once; while they wait each holds its float32 weights
+# on the host, 6.6 GB at this size). The two batch-64 remat variants also trace one step (perfetto).
 # Run from the repo root: bash results/performance/paper_step/variants.sh  (carry .whl; writes $OUT)
 # .whl held only flax, optax, ml-collections, absl-py and etils of launch/device_env.sh's list (2026-12-04):
 # the whole list and the repository were over the call's 64 MiB; the benchmark imports nothing else
@@ -28,7 +29,7 @@ N=${#VARIANTS[@]}
 for line in "${VARIANTS[@]}"; do
   read -r name flags <<< "$line"
   ( timeout $LIMIT $PY benchmarks/step_mfu.py --size $SIZE --dtype bfloat16 --length 256 --scan --peer-size 8192 \
-      --lock /tmp/step.lock --barrier $B:$N $flags --out $R/$name.json > $R/$name.log 2>&1
+      --lock /tmp/step.lock --barrier $B:$N --slots /tmp/compile_slot:${SLOTS:-4} $flags --out $R/$name.json > $R/$name.log 2>&1
     echo "$(date +%T) $name rc $?" >> $R/progress.txt; mkdir -p $B; touch $B/$name ) &
 done
 wait
