@@ -15,7 +15,7 @@ step's cost does not depend on their values.
 With --lock FILE, several of these processes share one accelerator: each compiles its step for abstract
 arrays and draws its weights on the host first (side by side), waits with --barrier DIR:N until N
 names are in DIR (each process's --out stem, written after its compile; a launcher adds the name of
-one that died), and holds the file's lock from placing its state to its last timed step, so no two
+one that died), and holds the lock (of FILE.0) from placing its state to its last timed step, so no two
 time at once and none times beside a compile. Their compile times are then times under each other's load.
 --slots PATH:K lets at most K of them compile and draw weights at once (the host's memory).
 """
@@ -31,10 +31,9 @@ import pathlib
 import sys
 import time
 
-import numpy as np
-
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from timing import best_time  # benchmarks/timing.py, beside this script
 from train import random_batch  # benchmarks/train.py
@@ -79,41 +78,35 @@ def model_config(args) -> config_lib.Kosmos2Config:
     return cfg
 
 
-def wait_at(barrier: str | None, name: str, timeout_s: float = 900.0) -> None:
-    """Add `name` to the barrier's folder and wait until it holds N names (`barrier` is "DIR:N")."""
+def path_and_count(text: str) -> tuple[pathlib.Path, int]:
+    """argparse type of --barrier and --slots: "PATH:N", N >= 1."""
+    path, _, count = text.rpartition(":")
+    if not path or not count.isdigit() or int(count) < 1:
+        raise argparse.ArgumentTypeError(f"expected PATH:N with N >= 1, got {text!r}")
+    return pathlib.Path(path), int(count)
+
+
+def wait_at(barrier: tuple[pathlib.Path, int] | None, name: str, timeout_s: float = 900.0) -> None:
+    """Add `name` to the barrier's folder and wait until it holds its N names."""
     if barrier is None:
         return
-    folder, _, count = barrier.rpartition(":")
-    folder = pathlib.Path(folder)
+    folder, count = barrier
     folder.mkdir(parents=True, exist_ok=True)
     (folder / name).touch()
     deadline = time.monotonic() + timeout_s
-    while len(list(folder.iterdir())) < int(count) and time.monotonic() < deadline:
+    while len(list(folder.iterdir())) < count and time.monotonic() < deadline:
         time.sleep(0.5)
 
 
 @contextlib.contextmanager
-def holding(lock: pathlib.Path | None):
-    """The exclusive lock on `lock` while inside (nothing without one)."""
-    if lock is None:
-        yield
-        return
-    with open(lock, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-@contextlib.contextmanager
-def one_of(slots: str | None):
-    """Inside, the lock of one of K files PATH.0 ... PATH.K-1 (`slots` is "PATH:K"; nothing without it)."""
+def one_of(slots: tuple[pathlib.Path, int] | None):
+    """Inside, the lock of one of the N files PATH.0 ... PATH.N-1 (`slots` is (PATH, N)): at most N
+    processes are inside at once. Nothing without slots."""
     if slots is None:
         yield
         return
-    path, _, count = slots.rpartition(":")
-    handles = [open(f"{path}.{i}", "a") for i in range(int(count))]
+    path, count = slots
+    handles = [open(f"{path}.{i}", "a") for i in range(count)]
     try:
         while True:
             for handle in handles:
@@ -148,7 +141,7 @@ def measure(cfg, args) -> dict:
         with jax.default_device(jax.devices("cpu")[0]):  # drawn on the host: no accelerator memory held while waiting
             params = jax.tree.map(np.asarray, split_model(build(cfg))[1])
     wait_at(args.barrier, args.out.stem if args.out else "step_mfu")
-    with holding(args.lock):
+    with one_of(args.lock and (args.lock, 1)):
         peer = matmul_rate(args.dtype, args.peer_size)
         holder = {"state": init_train_state(params, tx, mesh)}
         batch = jax.device_put(host_batch, batch_sharding(mesh))
@@ -193,7 +186,7 @@ def record(args) -> dict:
         "scan": args.scan, "attention": args.attention, "prng": jax.config.jax_default_prng_impl,
         "dropout_mask_bits": cfg.dropout_mask_bits,
         "text_dropout": cfg.text.dropout, "text_attention_dropout": cfg.text.attention_dropout,
-        "vision_attention_dropout": cfg.vision.attention_dropout, "compiled_beside_others": args.lock is not None,
+        "vision_attention_dropout": cfg.vision.attention_dropout,
         "step_s": round(run["step_s"], 5), "compile_s": round(run["compile_s"], 1),
         "tokens_per_s": round(args.batch * args.length / run["step_s"], 1),
         "model_flops": flops.model, "executed_flops": flops.executed,
@@ -226,12 +219,12 @@ def main() -> None:
     parser.add_argument("--dropout-mask-bits", type=int, default=32, choices=config_lib.DROPOUT_MASK_BITS,
                         help="random bits a dropout mask draws an element (Kosmos2Config.dropout_mask_bits)")
     parser.add_argument("--prng", default=None, choices=["threefry2x32", "rbg", "unsafe_rbg"],
-                        help="jax's PRNG for the dropout masks (default: jax's own); rbg's masks do not follow "
-                             "each example under vmap, so the trainer keeps threefry")
+                        help="jax's PRNG for the dropout masks (default: jax's own): what the masks cost only; the "
+                             "trainer's per-example masks are tested under threefry")
     parser.add_argument("--profile", type=pathlib.Path, help="trace one more step into this folder")
     parser.add_argument("--lock", type=pathlib.Path, help="time only while holding this file's lock")
-    parser.add_argument("--barrier", help="DIR:N: before timing, wait until N processes have compiled")
-    parser.add_argument("--slots", help="PATH:K: at most K processes compile and draw weights at once")
+    parser.add_argument("--barrier", type=path_and_count, help="DIR:N: before timing, wait until N processes have compiled")
+    parser.add_argument("--slots", type=path_and_count, help="PATH:K: at most K processes compile and draw weights at once")
     parser.add_argument("--repeats", type=int, default=5, help="timed steps; the best is kept")
     parser.add_argument("--peer-size", type=int, default=4096, help="side of the peer matmul")
     parser.add_argument("--out", type=pathlib.Path, help="also write the record to this JSON file")

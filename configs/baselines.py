@@ -5,7 +5,7 @@
 
 Variants:
   grconvnet_rgbd  GR-ConvNet (c = 16) on RGB-D views, Adam at a constant 1e-3 for 1,800 steps (RGB's schedule,
-                  checked on validation and on a second fold, results/baselines_validation; about 30 minutes on 2 cores)
+                  checked on validation and on a second fold, results/baselines_validation; about 35 minutes on 2 cores)
   grconvnet_rgb   GR-ConvNet (c = 16) on RGB views, Adam at a constant 1e-3 for 1,800 steps (chosen on
                   validation, results/baselines_validation; about 50 minutes on 2 CPU cores)
   ggcnn2_d        GG-CNN2 on depth views

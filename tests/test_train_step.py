@@ -357,6 +357,9 @@ def test_masks_from_fewer_bits_drop_the_rounded_rate_and_follow_their_example(ma
     np.testing.assert_allclose(kept, [1 / (1 - dropped)], rtol=1e-6)  # one float32 value: 1/keep
     # 262,144 draws: the dropped share within 5 standard deviations of the rounded rate
     assert abs(np.mean(out == 0) - dropped) < 5 * np.sqrt(dropped * (1 - dropped) / out.size)
+    # neighbours come from one random word: each pair must still be dropped together only at the rate squared
+    both = np.mean((out[..., :-1] == 0) & (out[..., 1:] == 0))
+    assert abs(both - dropped**2) < 5 * np.sqrt(dropped**2 / out.size)
     np.testing.assert_array_equal(masks(ids[::-1], ones), out[::-1])
     assert not np.array_equal(masks(ids, bits=32) == 0, out == 0)  # other bits, other masks
     with pytest.raises(ValueError, match="mask_bits must be one of"):

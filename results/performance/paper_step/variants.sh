@@ -33,8 +33,9 @@ for line in "${VARIANTS[@]}"; do
     echo "$(date +%T) $name rc $?" >> $R/progress.txt; mkdir -p $B; touch $B/$name ) &
 done
 wait
-for name in b64_full b64_dots; do
-  find /tmp/prof_$name -name 'perfetto_trace.json.gz' -exec cp {} $R/$name.perfetto_trace.json.gz \; 2>/dev/null
+for dir in /tmp/prof_*; do  # the variants given --profile
+  name=${dir#/tmp/prof_}
+  find $dir -name 'perfetto_trace.json.gz' -exec cp {} $R/$name.perfetto_trace.json.gz \; 2>/dev/null
   [[ -f $R/$name.perfetto_trace.json.gz ]] && $PY benchmarks/trace_summary.py $R/$name.perfetto_trace.json.gz --top 12 \
     | tee $R/$name.trace_summary.txt
 done
