@@ -253,6 +253,47 @@ def test_aggregate_results_and_table(tmp_path):
     assert "Folds not run yet (4)" in (tmp_path / "table.md").read_text()
 
 
+def test_arms_scored_under_their_own_protocols_and_public_on_fold_0_only(tmp_path):
+    """An arm may name some of the experiment's protocols; `public` is one split, so only fold 0 of each scheme
+    trains under it, and the table gets its columns."""
+    config, trainer = baseline_experiment(), FakeTrainer()
+    config.protocols = "honest,public"
+    config.arms.b2.protocols = "honest"
+    assert [r.name for r in spec.runs(config) if r.arm == "b1"] == [
+        f"b1 honest-{s} fold {f}" for s in ("image", "object") for f in (0, 1)] + [
+        "b1 public-image fold 0", "b1 public-object fold 0"]
+    summary = sweep(config, tmp_path, trainer)
+    assert summary["trained"] == 10 and summary["failed"] == []
+    assert ("b1", "public", "image", 0, 3) in trainer.calls and not any(c[0] == "b2" and c[1] == "public"
+                                                                         for c in trainer.calls)
+    assert summary["results"]["missing"] == []
+    table = (tmp_path / "table.md").read_text()
+    assert "| arm | IW honest | OW honest | IW public | OW public |" in table
+    assert "| b1 | 15.00 +- 5.00 (2) | 15.00 +- 5.00 (2) | 10.00 +- 0.00 (1) | 10.00 +- 0.00 (1) |" in table
+    assert "| b2 | 15.00 +- 5.00 (2) | 15.00 +- 5.00 (2) | - | - |" in table
+    config.folds = "1"
+    assert [r.name for r in spec.runs(config)] == [f"{a} honest-{s} fold 1" for a in ("b1", "b2")
+                                                   for s in ("image", "object")]
+
+
+def test_an_arm_protocol_outside_the_experiments_and_kosmos_e_under_public_are_refused(tmp_path):
+    config = baseline_experiment()
+    config.arms.b2.protocols = "honest,paper"
+    with pytest.raises(ExperimentError, match="arm 'b2' names protocol 'paper', which the experiment does not run"):
+        spec.runs(config)
+    config.arms.b2.protocols = "honest,open"
+    with pytest.raises(ExperimentError, match="unknown arm 'b2': protocols 'open'"):
+        spec.runs(config)
+    kosmos = one_arm("configs/kosmos_e.py:tiny")
+    kosmos.protocols = "honest,public"
+    trainer = FakeTrainer()
+    with pytest.raises(ExperimentError, match="a public-image fold 0: .*protocol 'public' scores a baseline's"):
+        sweep(kosmos, tmp_path, trainer)
+    with pytest.raises(ExperimentError, match="protocol 'public' scores a baseline's"):
+        checks.check_experiment(kosmos)
+    assert trainer.calls == []
+
+
 def kosmos_record(root, config, run, accuracy, tests, kinds):
     scores = lambda value: {"accuracy": value, "instructions": 10,
                             "by_kind": {k: {"accuracy": value, "instructions": 5} for k in kinds},
@@ -563,6 +604,26 @@ def test_the_cornell_data_sweep_fine_tunes_the_grounding_start_on_more_and_more_
     assert (config.schemes, config.protocols) == ("image,object", "honest")
 
 
+def test_table1_converged_scores_the_shipped_baselines_under_three_protocols_beside_make_demos_fine_tune():
+    """cpu_converged: the baselines as configs/baselines.py ships them (chosen on validation) under honest, paper
+    and public; KOSMOS-E as the Cornell Fig. 6 sweep's 4-view arm, honest only."""
+    config = spec.load_config("configs/experiments/table1.py:cpu_converged")
+    fig6 = spec.load_config("configs/experiments/data_size.py:cornell_grounded")
+    assert spec.arm_names(config) == ["kosmos_e", "grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d"]
+    kosmos = spec.arm_config(config, "kosmos_e")
+    assert kosmos == spec.arm_config(fig6, "cornell_aug4") and kosmos.init_from == spec.GROUNDING_START
+    for name in ("grconvnet_rgbd", "grconvnet_rgb", "ggcnn2_d"):
+        built, shipped = spec.arm_config(config, name), spec.load_config(f"configs/baselines.py:{name}")
+        assert built.data.source == "cornell" and built.train == shipped.train and built.optimizer == shipped.optimizer
+        assert built.optimizer.end_lr == built.optimizer.peak_lr  # the constant rate chosen on validation
+    cells = {(r.arm, r.protocol, r.scheme, r.fold) for r in spec.runs(config)}
+    assert {p for a, p, _, _ in cells if a == "kosmos_e"} == {"honest"}
+    assert {(p, f) for a, p, s, f in cells if a == "ggcnn2_d" and s == "image"} == {
+        ("honest", 0), ("honest", 1), ("paper", 0), ("paper", 1), ("public", 0)}
+    reports = checks.check_experiment(config)
+    assert {(r["arm"], r["protocol"]) for r in reports} == {(a, p) for a, p, _, _ in cells}
+
+
 def test_the_cornell_epochs_sweep_scales_the_schedule_with_the_views_and_shares_the_four_view_arm():
     """Each arm makes the same passes over its views (100 steps and 25 warm-up steps a view); else as cornell_grounded."""
     fixed = spec.load_config("configs/experiments/data_size.py:cornell_grounded")
@@ -792,9 +853,9 @@ def test_tiny_sweep_end_to_end(tmp_path):
                  "train.eval_batches": 1, "optimizer.warmup_steps": 1}
     baseline = {"data.root": str(tmp_path / "data"), "train.steps": 2, "train.checkpoint_every": 2,
                 "train.batch_size": 8}  # the suite's 8 fake devices
-    config = experiment("tiny", {"kosmos_e": arm("configs/kosmos_e.py:tiny", overrides),
+    config = experiment("tiny", {"kosmos_e": arm("configs/kosmos_e.py:tiny", overrides, protocols="honest"),
                                  "grconvnet": arm("configs/baselines.py:tiny", baseline)},
-                        schemes="image", protocols="honest", k=3, folds="0,1")
+                        schemes="image", protocols="honest,public", k=3, folds="0,1")
     calls = []
 
     def counted(config_, workdir):
@@ -802,7 +863,7 @@ def test_tiny_sweep_end_to_end(tmp_path):
         return runner.default_train(config_, workdir)
 
     summary = runner.run_experiment(config, tmp_path / "w", train=counted, command="pytest", say=lambda line: None)
-    assert summary["trained"] == 4 and summary["failed"] == [] and len(calls) == 4
+    assert summary["trained"] == 5 and summary["failed"] == [] and len(calls) == 5
     for fold in (0, 1):
         record = records.read_record(tmp_path / "w" / "kosmos_e" / f"honest-image-fold{fold}")
         evaluated = json.loads((tmp_path / "w" / "kosmos_e" / f"honest-image-fold{fold}" / "eval" / "2" / "results.json").read_text())
@@ -812,8 +873,14 @@ def test_tiny_sweep_end_to_end(tmp_path):
     baseline_record = records.read_record(tmp_path / "w" / "grconvnet" / "honest-image-fold1")
     assert baseline_record["task"] == "baseline" and baseline_record["no_learning"] is None
     assert 0 <= baseline_record["accuracy"] <= 100 and baseline_record["training_examples"] > 0
-    rows = {r["arm"]: r for r in summary["results"]["rows"]}
-    assert set(rows) == {"kosmos_e", "grconvnet", "image_centre", "gt_mean_oracle"}
-    assert rows["kosmos_e"]["n_folds"] == rows["grconvnet"]["n_folds"] == rows["image_centre"]["n_folds"] == 2
+    public = records.read_record(tmp_path / "w" / "grconvnet" / "public-image-fold0")
+    trained = runner.records.run_description(tmp_path / "w" / "grconvnet" / "public-image-fold0")["config"]
+    assert public["eval"]["protocol"] == "public" and trained["data"]["protocol"] == "public"
+    assert 0 <= public["accuracy"] <= 100 and public["no_learning"] is None
+    rows = {(r["arm"], r["protocol"]): r for r in summary["results"]["rows"]}
+    assert set(rows) == {(a, "honest") for a in ("kosmos_e", "grconvnet", "image_centre", "gt_mean_oracle")} | {
+        ("grconvnet", "public")}
+    assert all(rows[(a, "honest")]["n_folds"] == 2 for a in ("kosmos_e", "grconvnet", "image_centre"))
+    assert rows[("grconvnet", "public")]["n_folds"] == 1
     again = runner.run_experiment(config, tmp_path / "w", train=counted, say=lambda line: None)
-    assert again["skipped"] == 4 and len(calls) == 4
+    assert again["skipped"] == 5 and len(calls) == 5

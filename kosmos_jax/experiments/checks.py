@@ -26,6 +26,7 @@ from kosmos_jax.experiments.spec import ExperimentError
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models.kosmos2 import abstract_model, param_count
 from kosmos_jax.models.mesh import make_mesh
+from kosmos_jax.sources import splits
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.task import check_batch_layout
 from kosmos_jax.workdir.model import model_config
@@ -43,8 +44,10 @@ def check_source(data, folds: int, where: str) -> str:
     return data.source
 
 
-def check_fold(protocol, scheme, fold, folds, where: str) -> None:
-    spec.parse_protocols(protocol, f"{where}: protocol")
+def check_fold(protocol, scheme, fold, folds, where: str, task: str) -> None:
+    spec.parse_protocols(protocol, f"{where}: protocol", task)
+    if protocol == splits.PUBLIC and fold != 0:
+        raise ExperimentError(f"{where}: fold {fold}: the public protocol has one split, fold 0")
     spec.parse_names(scheme, spec.SCHEMES, f"{where}: scheme")
     if not 0 <= fold < folds:
         raise ExperimentError(f"{where}: fold {fold} outside 0..{folds - 1}")
@@ -65,7 +68,7 @@ def build_settings(data, where: str) -> BuildConfig:
     if build.augmentations < 1 or build.recipe not in RECIPES:
         raise ExperimentError(f"{where}: data.build: augmentations={build.augmentations}, recipe={build.recipe!r}: "
                               f"expected at least 1 and one of {RECIPES}")
-    check_fold(build.protocol, build.split, build.fold, build.folds, where)
+    check_fold(build.protocol, build.split, build.fold, build.folds, where, "kosmos_e")
     return build
 
 
@@ -103,7 +106,7 @@ def baseline_params(network: str, mode: str, channels: int, loss: str | None) ->
 
 def check_baseline(config, where: str) -> dict:
     data = config.data
-    check_fold(data.protocol, data.scheme, data.fold, data.folds, where)
+    check_fold(data.protocol, data.scheme, data.fold, data.folds, where, "baseline")
     check_source(data, data.folds, where)
     if data.copies < 1 or data.recipe not in RECIPES:
         raise ExperimentError(f"{where}: data.copies={data.copies}, data.recipe={data.recipe!r}: expected at least 1 "

@@ -3,11 +3,13 @@
 An experiment config (configs/experiments/*.py, made with `experiment` and `arm` below) holds:
   name        the experiment ("table1")
   arms        {arm name: arm(...)}: a training config file and variant ("configs/kosmos_e.py:demo",
-              "configs/baselines.py:ggcnn2_d"), dotted overrides, and a `series` (the line of the
-              data-size plot it belongs to; "" = none)
+              "configs/baselines.py:ggcnn2_d"), dotted overrides, a `series` (the line of the
+              data-size plot it belongs to; "" = none) and the arm's `protocols` ("" = the experiment's;
+              else those of the experiment's it is scored under)
   run_arms    "" (every arm) or "kosmos_e,ggcnn2_d": the arms this invocation trains
   schemes     "image", "object" or "image,object": image-wise and/or object-wise folds
-  protocols   "honest", "paper" or both (DESIGN.md section 3)
+  protocols   some of "honest", "paper" (DESIGN.md section 3) and "public" (the baselines' own protocol,
+              kosmos_jax.baselines: one split, so fold 0 of each scheme only; baseline arms only)
   k           folds of the cross-validation
   folds       "" (all k) or "0,1": the folds this invocation trains (a SLURM array task runs one)
   init_from   a KOSMOS-2 folder every KOSMOS-E arm starts from ("" = the arm's own config.init_from);
@@ -33,7 +35,7 @@ from kosmos_jax.sources import splits
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SCHEMES = ("image", "object")
-PROTOCOLS = splits.KOSMOS_E_PROTOCOLS
+PROTOCOLS = splits.PROTOCOLS
 TASKS = ("kosmos_e", "baseline")
 FOLD_FIELDS = {  # task -> (protocol, scheme, fold, folds) fields of its training config
     "kosmos_e": ("data.build.protocol", "data.build.split", "data.build.fold", "data.build.folds"),
@@ -84,9 +86,11 @@ def dotted(tree, prefix: str = "") -> dict:
     return out
 
 
-def arm(config: str, overrides: dict | None = None, series: str = "") -> ml_collections.ConfigDict:
-    """One arm: `config` is FILE:VARIANT of a training config, `overrides` {dotted field: value}."""
-    return ml_collections.ConfigDict(dict(config=config, overrides=nested(overrides or {}), series=series))
+def arm(config: str, overrides: dict | None = None, series: str = "", protocols: str = "") -> ml_collections.ConfigDict:
+    """One arm: `config` is FILE:VARIANT of a training config, `overrides` {dotted field: value},
+    `protocols` "" (every protocol the experiment runs) or the ones this arm is scored under."""
+    return ml_collections.ConfigDict(dict(config=config, overrides=nested(overrides or {}), series=series,
+                                          protocols=protocols))
 
 
 def experiment(name: str, arms: dict, *, schemes: str, protocols: str, k: int = 5, folds: str = "",
@@ -119,11 +123,32 @@ def parse_names(text, allowed, what: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def parse_protocols(text, what: str = "protocol") -> list[str]:
-    """parse_names over PROTOCOLS; "public", the baselines' one-split protocol, refused with why."""
-    if splits.PUBLIC in [n.strip() for n in str(text).split(",")]:
+def parse_protocols(text, what: str = "protocol", task: str = "baseline") -> list[str]:
+    """parse_names over PROTOCOLS; for a KOSMOS-E task "public", the baselines' one-split protocol,
+    refused with why."""
+    if task == "kosmos_e" and splits.PUBLIC in [n.strip() for n in str(text).split(",")]:
         raise ExperimentError(f"{what} {text!r}: {splits.PUBLIC_REFUSED}")
     return parse_names(text, PROTOCOLS, what)
+
+
+def arm_protocols(config, name: str) -> list[str]:
+    """The protocols arm `name` is scored under in this experiment: its own list, or the experiment's.
+    An arm's list must lie within the experiment's (a typo would otherwise drop the arm silently)."""
+    chosen = parse_protocols(config.protocols)
+    own = config.arms[name].get("protocols", "")
+    if not own:
+        return chosen
+    listed = parse_protocols(own, f"arm {name!r}: protocols")
+    outside = [p for p in listed if p not in chosen]
+    if outside:
+        raise ExperimentError(f"arm {name!r} names protocol {outside[0]!r}, which the experiment does not run "
+                              f"(protocols {config.protocols!r})")
+    return listed
+
+
+def protocol_folds(protocol: str, folds: list[int]) -> list[int]:
+    """The folds a protocol has among `folds`: "public" is one split, fold 0 only."""
+    return [f for f in folds if f == 0] if protocol == splits.PUBLIC else folds
 
 
 def parse_folds(text, k: int) -> list[int]:
@@ -296,7 +321,7 @@ def check_recipe(record: dict, fold_config, where) -> None:
 def runs(config, every: bool = False) -> list[Run]:
     """The runs this invocation trains (chosen arms and folds), or with `every` all the experiment's."""
     schemes = parse_names(config.schemes, SCHEMES, "scheme")
-    protocols = parse_protocols(config.protocols)
     folds = parse_folds("" if every else config.folds, config.k)
     arms = arm_names(config) if every else chosen_arms(config)
-    return [Run(a, p, s, f) for a in arms for p in protocols for s in schemes for f in folds]
+    return [Run(a, p, s, f) for a in arms for p in arm_protocols(config, a) for s in schemes
+            for f in protocol_folds(p, folds)]
