@@ -17,7 +17,8 @@ Variants:
   demo_grounded  what `make demo` trains: demo_photos_finetune from a grounding start (the committed
          results/pretrain/grounding14000: its connector reads the instruction) on NON and the six
          multi-object kinds on mosaics for 400 steps (results/pretrain/README.md, "The grounding start
-         shipped"; chosen there for results/pretrain/grounding6000 and not chosen again for its successors)
+         shipped"; chosen there for results/pretrain/grounding6000); make demo doubles them (configs/demo.py's
+         steps, chosen on validation for grounding14000: results/finetune_length)
   demo_gpu  demo on four times the photos for three times the steps: minutes on a GPU, about an hour on 2
          cores (53 minutes, results/pretrain/README.md)
          (results/scale_study: 48.35 on validation against 33.33 on demo's 300 photos, same steps)

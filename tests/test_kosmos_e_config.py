@@ -56,6 +56,9 @@ def test_demo_grounded_is_the_fine_tune_with_the_instruction_reading_connector_o
     assert grounded["require_init"] and grounded["model"]["connector_instruction"]
     assert (grounded["data"]["build"]["kinds"], grounded["data"]["build"]["max_length"]) == ("non,multi", 128)
     assert grounded["train"]["steps"] == grounded["train"]["eval_every"] == tune["train"]["steps"] // 2
+    # make demo fine-tunes twice as long (configs/demo.py); its tiny smoke run keeps the config's own steps
+    demo = config_module("configs/demo.py")
+    assert demo.get_config().steps == tune["train"]["steps"] and demo.get_config("tiny").steps == 0
     for config in (tune, grounded):
         config.pop("variant"), config["model"].pop("connector_instruction")
         config["data"]["build"].pop("kinds"), config["data"]["build"].pop("max_length")
