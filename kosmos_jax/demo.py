@@ -99,6 +99,7 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     train_config.data.root = str(out / "datasets")
     train_config.train.grasp_eval_at_end = False  # evaluate_run below decodes the test answers (once)
     workdir = out / "run"
+    check_schedule(workdir, train_config, out)
     started = time.perf_counter()
     try:
         summary = runner.default_train(train_config, workdir)
@@ -117,6 +118,20 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
     if config.fresh_photos:
         rows += fresh_rows(config, train_config, out, workdir, summary["step"])
     return rows
+
+
+def check_schedule(workdir: pathlib.Path, train_config, out: pathlib.Path) -> None:
+    """Refuse a run left in `workdir` by a make demo of another schedule (400 steps before 2026-12-04): the
+    trainer would lengthen it under the new schedule, which is not the demo's recipe."""
+    described = workdir / "run.json"
+    if not described.is_file():
+        return
+    from kosmos_jax.train.trainer import schedule_change
+
+    changed = schedule_change(json.loads(described.read_text()), {"config": json.loads(train_config.to_json_best_effort())})
+    if changed:
+        raise SystemExit(f"error: {workdir} holds a run of {changed}, another make demo's schedule "
+                         f"(for the demo: remove {out}, or give --config.out=ANOTHER_FOLDER)")
 
 
 def scored_rows(fields: dict, figures_of: list[tuple[str, dict]]) -> list[dict]:

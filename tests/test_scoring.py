@@ -198,6 +198,22 @@ def test_the_scene_table_puts_the_model_s_angle_fit_under_its_accuracy(capsys):
     assert "angle fit" not in capsys.readouterr().out
 
 
+def test_a_demo_run_of_another_schedule_is_refused_before_it_trains(tmp_path):
+    """A demo_out of make demo's earlier 400 steps would be lengthened under another schedule: refused, saying how."""
+    config = spec.load_config("configs/kosmos_e.py:tiny")
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "run.json").write_text(json.dumps({"config": json.loads(config.to_json_best_effort())}))
+    demo.check_schedule(tmp_path / "run", config, tmp_path)  # the same schedule: resumed or reused
+    demo.check_schedule(tmp_path / "elsewhere", config, tmp_path)  # no run yet
+    for field, value in (("train.steps", 12), ("optimizer.peak_lr", 1e-4)):
+        changed = spec.load_config("configs/kosmos_e.py:tiny")
+        group, name = field.split(".")
+        changed[group][name] = value
+        with pytest.raises(SystemExit, match=rf"run holds a run of {field}=.* \(this config: {value!r}\), another "
+                                             rf"make demo's schedule \(for the demo: remove {tmp_path}"):
+            demo.check_schedule(tmp_path / "run", changed, tmp_path)
+
+
 @pytest.mark.slow  # a tiny training run, its build and decoding: about 90 s on 2 loaded cores
 def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instructions(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(demo, "DEFAULT_CORNELL", tmp_path / "absent")
@@ -236,6 +252,8 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     assert "(angle fit)" in out
     demo.run(demo_config(tmp_path, steps=6))  # a finished run is reused, not trained again
     assert json.loads((tmp_path / "results.json").read_text())[: len(trained)] == trained
+    with pytest.raises(SystemExit, match=r"holds a run of train.steps=6 \(this config: 12\)"):
+        demo.run(demo_config(tmp_path, steps=12))
     # another demo that starts from this one's run: its config names the start, its tokenizer is the start's
     second = tmp_path / "second"
     demo.run(demo_config(second, steps=6, fresh_photos=0, init_from=str(tmp_path / "run")))

@@ -20,6 +20,7 @@ import json
 import pathlib
 import shutil
 import signal
+import sys
 import time
 
 import jax
@@ -135,6 +136,19 @@ def check_same_run(stored: dict, current: dict, workdir) -> None:
     if stored_seed != seed and stored_seed is not None:
         raise RunMismatchError(f"{workdir} holds a run of train.seed={stored_seed}, not {seed}; "
                                "resume it with its own seed or use a new --workdir")
+
+
+def schedule_change(stored: dict, current: dict) -> str | None:
+    """"train.steps=400 (this config: 800)" when a run description's optimiser settings or steps (what its
+    learning-rate schedule is made of) differ from `current`'s; None when they agree. A run resumed with
+    other ones goes on under the new schedule from its checkpoint's step (how a run is lengthened)."""
+    def fields(description: dict) -> dict:
+        return {key: value for key, value in run_start.flat(description.get("config", {})).items()
+                if key == "train.steps" or key.startswith("optimizer.")}
+
+    before, now = fields(stored), fields(current)
+    differing = [key for key in sorted(before.keys() & now.keys()) if before[key] != now[key]]
+    return f"{differing[0]}={before[differing[0]]!r} (this config: {now[differing[0]]!r})" if differing else None
 
 
 # Config fields that are paths on one machine, not what a run is
@@ -321,6 +335,10 @@ def train(config, workdir) -> dict:
     else:
         stored = checkpoints.run_info(latest)
         check_same_run(stored, task.description, workdir)
+        changed = schedule_change(stored, task.description)
+        if changed and primary:
+            print(f"note: {workdir} began with {changed}: its learning-rate schedule changes from step {latest} on",
+                  file=sys.stderr, flush=True)
         if "init" in stored:  # the start it was made from, not what config.init_from holds today
             task.description["init"] = stored["init"]
         state, data_state, _ = checkpoints.restore(latest, task.abstract_state())
