@@ -4,8 +4,9 @@ bits an element against nnx.Dropout's one mask over the batch (the peer), interl
     GLIBC_TUNABLES=glibc.malloc.hugetlb=1 .venv/bin/python benchmarks/dropout_masks.py [--shape 8,8,256,256] [--rounds 8]
 
 The default shape is attention weights [B, H, T, T] of 8 sequences of 256 tokens (the paper step's length)
-with 8 heads: one attention-dropout mask, of the kind the largest masks of a step are. Each contestant applies rate-0.1 dropout to the same float32 array under jit; the
-table gives each one's median and best over the rounds and the median's ratio to the peer's.
+with 8 heads: one attention-dropout mask, of the kind the largest masks of a step are. Each contestant
+applies rate-0.1 dropout to the same float32 array under jit; the table gives each one's median and best
+over the rounds and the median's ratio to the peer's.
 """
 
 from __future__ import annotations

@@ -130,7 +130,7 @@ def check_schedule(workdir: pathlib.Path, train_config, out: pathlib.Path) -> No
 
     changed = schedule_change(json.loads(described.read_text()), {"config": json.loads(train_config.to_json_best_effort())})
     if changed:
-        raise SystemExit(f"error: {workdir} holds a run of {changed}, another make demo's schedule "
+        raise SystemExit(f"error: {workdir} holds a run made with {changed}, another make demo's schedule "
                          f"(for the demo: remove {out}, or give --config.out=ANOTHER_FOLDER)")
 
 

@@ -13,6 +13,7 @@ from kosmos_jax.sources.photo import Photo
 from kosmos_jax.dataset import views
 from kosmos_jax.scoring import fold_scores, no_learning
 from kosmos_jax.experiments import spec
+from kosmos_jax.train import trainer
 from kosmos_jax.train.metrics_log import read_metrics
 
 
@@ -205,13 +206,20 @@ def test_a_demo_run_of_another_schedule_is_refused_before_it_trains(tmp_path):
     (tmp_path / "run" / "run.json").write_text(json.dumps({"config": json.loads(config.to_json_best_effort())}))
     demo.check_schedule(tmp_path / "run", config, tmp_path)  # the same schedule: resumed or reused
     demo.check_schedule(tmp_path / "elsewhere", config, tmp_path)  # no run yet
-    for field, value in (("train.steps", 12), ("optimizer.peak_lr", 1e-4)):
+    steps = config.train.steps
+    for field, value, named in (("train.steps", 2 * steps, rf"the rate decaying until step {steps} \(this config: {2 * steps}\)"),
+                                ("optimizer.peak_lr", 1e-4, r"optimizer.peak_lr=.* \(this config: 0.0001\)")):
         changed = spec.load_config("configs/kosmos_e.py:tiny")
         group, name = field.split(".")
         changed[group][name] = value
-        with pytest.raises(SystemExit, match=rf"run holds a run of {field}=.* \(this config: {value!r}\), another "
+        with pytest.raises(SystemExit, match=rf"run holds a run made with {named}, another "
                                              rf"make demo's schedule \(for the demo: remove {tmp_path}"):
             demo.check_schedule(tmp_path / "run", changed, tmp_path)
+    lengthened = spec.load_config("configs/kosmos_e.py:tiny")  # a decay that ends at a fixed step: the same schedule
+    fixed = spec.load_config("configs/kosmos_e.py:tiny")
+    fixed.optimizer.decay_steps = lengthened.optimizer.decay_steps = steps
+    lengthened.train.steps = 2 * steps
+    assert trainer.schedule_change({"config": fixed.to_dict()}, {"config": lengthened.to_dict()}) is None
 
 
 @pytest.mark.slow  # a tiny training run, its build and decoding: about 90 s on 2 loaded cores
@@ -252,7 +260,7 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     assert "(angle fit)" in out
     demo.run(demo_config(tmp_path, steps=6))  # a finished run is reused, not trained again
     assert json.loads((tmp_path / "results.json").read_text())[: len(trained)] == trained
-    with pytest.raises(SystemExit, match=r"holds a run of train.steps=6 \(this config: 12\)"):
+    with pytest.raises(SystemExit, match=r"holds a run made with the rate decaying until step 6 \(this config: 12\)"):
         demo.run(demo_config(tmp_path, steps=12))
     # another demo that starts from this one's run: its config names the start, its tokenizer is the start's
     second = tmp_path / "second"

@@ -141,7 +141,7 @@ def test_a_checkpoint_of_eight_fsdp_devices_restores_onto_one(reference, dataset
     train(tmp_path, dataset_dir, "--config.train.steps=5", "--config.mesh.data=1", "--config.mesh.fsdp=8", devices=8)
     resumed = train(tmp_path, dataset_dir, "--config.train.steps=10", "--config.mesh.data=1", "--config.mesh.fsdp=1")
     assert "from step 5" in resumed.stderr
-    assert "began with train.steps=5 (this config: 10): its learning-rate schedule changes from step 5 on" in resumed.stderr
+    assert "schedule changes" not in resumed.stderr  # lengthened under COMMON's fixed decay: the same schedule, no note
     losses, expected = train_losses(tmp_path), train_losses(reference)
     np.testing.assert_allclose([losses[s] for s in range(6, 11)], [expected[s] for s in range(6, 11)], rtol=1e-4)
 

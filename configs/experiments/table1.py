@@ -23,11 +23,11 @@ cpu_pretrained: cpu_demo's folds and protocol, KOSMOS-E fine-tuned from the comm
 scenes only), 800 steps at batch 32, as `make demo` fine-tuned it until 2026-11-30.
 cpu_converged: the baselines with the schedules they ship (configs/baselines.py: chosen on validation and
 checked on a second fold, results/baselines_validation; about 30 to 37 minutes a fold on 2 quiet cores)
-under honest and paper, and GR-ConvNet and GG-CNN2's own protocol, public (image-wise fold 0 only: it is one
-split); KOSMOS-E as make demo fine-tunes it (configs/kosmos_e.py:demo_grounded from the committed grounding
-start, 400 steps), under honest only (its photo-centre crops would replace the paper protocol's label-centred
-ones), on Cornell's NON instructions with 4 views a photo: data_size.py:cornell_grounded's 4-view arm. Folds 0
-and 1 of both schemes.
+under honest and paper, and GR-ConvNet and GG-CNN2's own protocol, public (one split: fold 0 of each scheme,
+photos shuffled image-wise, in file order object-wise); KOSMOS-E as configs/kosmos_e.py:demo_grounded
+fine-tunes the committed grounding start (400 steps; make demo itself now runs 800), under honest only (its
+photo-centre crops would replace the paper protocol's label-centred ones), on Cornell's NON instructions with
+4 views a photo: data_size.py:cornell_grounded's 4-view arm. Folds 0 and 1 of both schemes (results/table1_converged).
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines
 with a longer schedule, every fold.
 

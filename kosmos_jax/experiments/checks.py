@@ -26,7 +26,6 @@ from kosmos_jax.experiments.spec import ExperimentError
 from kosmos_jax.models import config as model_configs
 from kosmos_jax.models.kosmos2 import abstract_model, param_count
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.sources import splits
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.train.task import check_batch_layout
 from kosmos_jax.workdir.model import model_config
@@ -46,8 +45,6 @@ def check_source(data, folds: int, where: str) -> str:
 
 def check_fold(protocol, scheme, fold, folds, where: str, task: str) -> None:
     spec.parse_protocols(protocol, f"{where}: protocol", task)
-    if protocol == splits.PUBLIC and fold != 0:
-        raise ExperimentError(f"{where}: fold {fold}: the public protocol has one split, fold 0")
     spec.parse_names(scheme, spec.SCHEMES, f"{where}: scheme")
     if not 0 <= fold < folds:
         raise ExperimentError(f"{where}: fold {fold} outside 0..{folds - 1}")

@@ -138,17 +138,31 @@ def check_same_run(stored: dict, current: dict, workdir) -> None:
                                "resume it with its own seed or use a new --workdir")
 
 
-def schedule_change(stored: dict, current: dict) -> str | None:
-    """"train.steps=400 (this config: 800)" when a run description's optimiser settings or steps (what its
-    learning-rate schedule is made of) differ from `current`'s; None when they agree. A run resumed with
-    other ones goes on under the new schedule from its checkpoint's step (how a run is lengthened)."""
-    def fields(description: dict) -> dict:
-        return {key: value for key, value in run_start.flat(description.get("config", {})).items()
-                if key == "train.steps" or key.startswith("optimizer.")}
+DECAY_END = "decay_end"  # schedule_fields' key of the step the rate's decay ends at
 
-    before, now = fields(stored), fields(current)
+
+def schedule_fields(description: dict) -> dict:
+    """What a run description's learning-rate schedule is made of: the optimiser's settings, with the step
+    its decay ends at (optimizer.decay_steps, or train.steps when that is 0) in place of decay_steps."""
+    config = run_start.flat(description.get("config", {}))
+    fields = {key: value for key, value in config.items() if key.startswith("optimizer.") and key != "optimizer.decay_steps"}
+    if "train.steps" in config:
+        fields[DECAY_END] = config.get("optimizer.decay_steps") or config["train.steps"]
+    return fields
+
+
+def schedule_change(stored: dict, current: dict) -> str | None:
+    """"the rate decaying until step 400 (this config: 800)" or "optimizer.peak_lr=... (this config: ...)"
+    when a run description's schedule differs from `current`'s; None when they agree. A run resumed under
+    another one goes on under it from its checkpoint's step (how a run is lengthened)."""
+    before, now = schedule_fields(stored), schedule_fields(current)
     differing = [key for key in sorted(before.keys() & now.keys()) if before[key] != now[key]]
-    return f"{differing[0]}={before[differing[0]]!r} (this config: {now[differing[0]]!r})" if differing else None
+    if not differing:
+        return None
+    key = differing[0]
+    if key == DECAY_END:
+        return f"the rate decaying until step {before[key]} (this config: {now[key]})"
+    return f"{key}={before[key]!r} (this config: {now[key]!r})"
 
 
 # Config fields that are paths on one machine, not what a run is
