@@ -24,7 +24,9 @@ older version, which wrote straight into DIR, left when stopped); it keeps the f
 generator does not make.
 
 API: plan(seed, photos) -> which object each photo shows; make_scene(rng, spec, background) ->
-Scene(rgb, depth, positives, negatives, meta, object_mask); write_dataset(out, photos, seed);
+Scene(rgb, depth, positives, negatives, meta, object_mask); posed_photo(seed, index) -> a written
+photo's Scene again and its Posed object, on which draw_positives(rng, posed) draws other annotations
+of the same photo; write_dataset(out, photos, seed);
 read_meta(root) -> the per-photo metadata; is_partial_dataset(root) -> whether a folder is what
 an interrupted write of older versions (straight into DIR) left behind. Objects:
 objects.py; drawing and depth: render.py; grasp rectangles: grasps.py (this package).
@@ -138,9 +140,36 @@ def _pose_fits(placed: ObjectSpec, background: Background) -> bool:
     return bool(grasps_lib.inside(background.table_mask, every).all() and every[:, 1].min() > 40)
 
 
+@dataclasses.dataclass(frozen=True)
+class Posed:
+    """A scene's object as placed and drawn, before any grasp is drawn on it."""
+    spec: ObjectSpec  # placed in the photo
+    masks: grasps_lib.Masks
+    graspable: tuple[int, ...]  # the parts with a spine
+    chances: np.ndarray  # each graspable part's chance of holding a positive grasp
+
+
+def draw_positives(rng: np.random.Generator, posed: Posed) -> tuple[list[np.ndarray], list[str]]:
+    """One annotation of the posed object: 2 to 7 positive grasps (x, y, w, h, theta) and their parts."""
+    positives, parts_of = [], []
+    for _ in range(int(rng.choice(POSITIVES[0], p=POSITIVES[1]))):
+        k = posed.graspable[int(rng.choice(len(posed.graspable), p=posed.chances))]
+        grasp = grasps_lib.sample_positive(rng, posed.spec.parts[k], k, posed.masks)
+        if grasp is not None:
+            positives.append(grasp)
+            parts_of.append(posed.spec.parts[k].name)
+    return positives, parts_of
+
+
 def make_scene(rng: np.random.Generator, spec: ObjectSpec, background: Background, tries: int = 40) -> Scene:
     """Pose `spec` on `background`, render it, and sample its positive and negative grasps."""
-    graspable = [i for i, p in enumerate(spec.parts) if p.spine is not None]
+    return make_posed_scene(rng, spec, background, tries)[0]
+
+
+def make_posed_scene(rng: np.random.Generator, spec: ObjectSpec, background: Background,
+                     tries: int = 40) -> tuple[Scene, Posed]:
+    """make_scene's scene and the posed object its grasps were drawn on (to draw them again)."""
+    graspable = tuple(i for i, p in enumerate(spec.parts) if p.spine is not None)
     weights = np.array([spec.parts[i].weight for i in graspable])
     for _ in range(tries):
         angle, scale = rng.uniform(0, 2 * math.pi), rng.uniform(0.9, 1.12)
@@ -149,14 +178,8 @@ def make_scene(rng: np.random.Generator, spec: ObjectSpec, background: Backgroun
         if not _pose_fits(placed, background):
             continue
         drawn = render(rng, background, placed)
-        masks = grasps_lib.Masks(drawn.object_mask, drawn.part_masks)
-        positives, parts_of = [], []
-        for _ in range(int(rng.choice(POSITIVES[0], p=POSITIVES[1]))):
-            k = graspable[int(rng.choice(len(graspable), p=weights / weights.sum()))]
-            grasp = grasps_lib.sample_positive(rng, placed.parts[k], k, masks)
-            if grasp is not None:
-                positives.append(grasp)
-                parts_of.append(placed.parts[k].name)
+        posed = Posed(placed, grasps_lib.Masks(drawn.object_mask, drawn.part_masks), graspable, weights / weights.sum())
+        positives, parts_of = draw_positives(rng, posed)
         if not positives:
             continue
         negatives, kinds = [], []
@@ -164,7 +187,7 @@ def make_scene(rng: np.random.Generator, spec: ObjectSpec, background: Backgroun
             part = placed.parts[graspable[int(rng.integers(len(graspable)))]]
             kind = str(rng.choice(grasps_lib.NEGATIVE_KINDS))
             kind = "narrow" if kind == "along" and part.isotropic else kind
-            grasp = grasps_lib.sample_negative(rng, kind, part, masks)
+            grasp = grasps_lib.sample_negative(rng, kind, part, posed.masks)
             if grasp is not None:
                 negatives.append(grasp)
                 kinds.append(kind)
@@ -190,8 +213,9 @@ def make_scene(rng: np.random.Generator, spec: ObjectSpec, background: Backgroun
             "table_inverse_depth": list(background.table_inverse_depth),
         }
         to_corners = lambda gs: geometry.grasps_to_corners(np.array(gs, np.float64).reshape(-1, 5))  # noqa: E731
-        return Scene(rgb=drawn.rgb, depth=drawn.depth, positives=to_corners(positives),
-                     negatives=to_corners(negatives), meta=meta, object_mask=drawn.object_mask)
+        scene = Scene(rgb=drawn.rgb, depth=drawn.depth, positives=to_corners(positives),
+                      negatives=to_corners(negatives), meta=meta, object_mask=drawn.object_mask)
+        return scene, posed
     raise RuntimeError(f"could not place a graspable {spec.category} (object {spec.object_id}) in {tries} tries")
 
 
@@ -286,16 +310,30 @@ class WrittenPhoto:
     meta: dict
 
 
+def _planned_object(seed: int, planned: PlannedPhoto) -> ObjectSpec:
+    return sample_object(np.random.default_rng([seed, 1, planned.object_index]), planned.category, planned.object_index)
+
+
+def _planned_background(seed: int, planned: PlannedPhoto) -> Background:
+    name = f"pcdb_{planned.background_index + 1:04d}"
+    return make_background(np.random.default_rng([seed, 2, planned.background_index]), name)
+
+
+def posed_photo(seed: int, index: int) -> tuple[Scene, Posed]:
+    """Photo `index` (0-based) of the set written with `seed`, drawn again, and its posed object."""
+    planned = plan(seed, index + 1)[index]
+    return make_posed_scene(np.random.default_rng([seed, 3, planned.index]), _planned_object(seed, planned),
+                            _planned_background(seed, planned))
+
+
 def _write_group(out: pathlib.Path, seed: int, group: list[PlannedPhoto]) -> list[WrittenPhoto]:
     """Draw and write the photos of one background (consecutive in the plan), in order."""
     spec, background, written = None, None, []
     for planned in group:
         if spec is None or spec.object_id != planned.object_index:
-            spec = sample_object(np.random.default_rng([seed, 1, planned.object_index]), planned.category,
-                                 planned.object_index)
+            spec = _planned_object(seed, planned)
         if background is None:
-            name = f"pcdb_{planned.background_index + 1:04d}"
-            background = make_background(np.random.default_rng([seed, 2, planned.background_index]), name)
+            background = _planned_background(seed, planned)
         scene = make_scene(np.random.default_rng([seed, 3, planned.index]), spec, background)
         folder_name, stem = photo_stem(planned.index)
         folder = out / folder_name
