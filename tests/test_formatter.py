@@ -145,6 +145,46 @@ def test_top_target_of_one_grasp_and_of_a_tie():
         FormatConfig(target_grasp="nearest")
 
 
+def shapely_hit_counts(grasps):
+    """How many of `grasps` each one hits as a prediction (its x, y, theta with the other's w, h): IoU by
+    shapely, angle within 30 degrees modulo pi; the independent oracle of consensus_row."""
+    shapely = pytest.importorskip("shapely")
+    polygon = lambda g: shapely.Polygon(geometry.grasps_to_corners(np.asarray(g, np.float64)))  # noqa: E731
+    counts = []
+    for x, y, _, _, theta in grasps:
+        hits = 0
+        for other in grasps:
+            mine, theirs = polygon([x, y, other[2], other[3], theta]), polygon(other)
+            inter = mine.intersection(theirs).area
+            turn = abs((theta - other[4] + np.pi / 2) % np.pi - np.pi / 2)
+            hits += inter / (mine.area + theirs.area - inter) > 0.25 and turn <= np.radians(30)
+        counts.append(hits)
+    return counts
+
+
+def test_consensus_target_is_the_grasp_that_hits_the_most_of_the_others():
+    """A mug-like annotation: three grasps across a handle, beside three across the body at angles of their own:
+    the target is a handle grasp, the first row with the most hits by shapely's IoU, and both parts answer it."""
+    handle = _rows([(150, 100), (153, 100), (156, 101)], [0.05, 0.0, -0.04])
+    body = _rows([(100, 100), (101, 99), (99, 101)], [-1.2, 0.9, 0.2])
+    for order in (0, 1, 2):
+        grasps = np.random.default_rng(order).permutation(np.concatenate([body, handle]))
+        counts = shapely_hit_counts(grasps)
+        (location, angle) = format_sample(_sample(grasps), FormatConfig(target_grasp="consensus"))
+        assert location.grasp.tolist() == angle.grasp.tolist() == grasps[int(np.argmax(counts))].tolist()
+        assert location.grasp[0] >= 150 and max(counts) == 3
+        assert np.array_equal(location.answers, grasps)
+
+
+def test_consensus_target_of_one_grasp_and_of_grasps_that_hit_none_of_each_other():
+    (only,) = format_sample(_sample(_rows([(5, 7)], [0.3])), FormatConfig(target_grasp="consensus", individual=False))
+    assert only.grasp[:2].tolist() == [5.0, 7.0]
+    apart = _rows([(10, 50), (90, 50), (170, 50)], [0.0, 1.0, -1.0])  # each hits itself only: the first row
+    assert shapely_hit_counts(apart) == [1, 1, 1]
+    (first,) = format_sample(_sample(apart), FormatConfig(target_grasp="consensus", individual=False))
+    assert first.grasp.tolist() == apart[0].tolist()
+
+
 def test_centre_on_the_edge_prints_inside():
     grasp = np.array([[223.7, 0.2, 30.0, 10.0, 0.0]])
     (example,) = format_sample(_sample(grasp), FormatConfig(individual=False))

@@ -14,7 +14,9 @@ Settings (`FormatConfig`), after the paper's ablations (Tables IV and V):
   or "random" (one, drawn with the given generator), or "top" (one, a function of the grasps' centres: the
   grasp nearest the point that lies one spread above their mean, so a ring answers with its top, a bar
   lying across the view with its middle, and the answer to an angle question asked without the location is
-  one angle, not a mixture of the angles around a rim).
+  one angle, not a mixture of the angles around a rim), or "consensus" (one, the grasp that, answered
+  as a prediction, hits the most of the sample's grasps under the honest rectangle metric, the first on a
+  tie: where the annotation's grasps crowd, a mug's handle rather than its body's grasps at random angles).
 An angle instruction already states the angle, so its answer is the location only.
 
 The text of a location is `grasp_text.format_grasp`'s, less the angle: it keeps every printed
@@ -31,10 +33,11 @@ import numpy as np
 
 from kosmos_jax import grasp_text
 from kosmos_jax.grasp_text import split_cue  # also formatter.split_cue, for the decoder's grammar
+from kosmos_jax.metrics.success import grasp_success
 
 LOSS_MODES = ("target", "instruction")
 OVERFLOW_MODES = ("error", "truncate")
-TARGET_CHOICES = ("first", "each", "random", "top")
+TARGET_CHOICES = ("first", "each", "random", "top", "consensus")
 PARTS = ("grasp", "location", "angle")
 
 # which of (x, y, w, h, theta) the text of each part states, by representation
@@ -156,10 +159,22 @@ def top_row(grasps: np.ndarray) -> int:
     return int(np.argmin(np.linalg.norm(centres - (mean - np.array([0.0, spread])), axis=1)))
 
 
+def consensus_row(grasps: np.ndarray) -> int:
+    """The row of the grasp whose (x, y, theta), as a prediction, hits the most of `grasps` [N, 5] (the
+    rectangle metric with each one's own w and h, as the honest protocol scores); the first such row on a tie."""
+    grasps = np.asarray(grasps, np.float32)
+    count = len(grasps)
+    predictions = np.repeat(grasps[:, [0, 1, 4]], count, axis=0)  # row i * count + j: grasp i against grasp j
+    hits = grasp_success(predictions, np.tile(grasps, (count, 1))[:, None], np.ones((count * count, 1), bool))
+    return int(np.argmax(np.asarray(hits).reshape(count, count).sum(axis=1)))
+
+
 def _chosen_rows(grasps: np.ndarray, config: FormatConfig, rng: np.random.Generator | None) -> list[int]:
     count = grasps.shape[0]
     if config.target_grasp == "top":
         return [top_row(grasps)]
+    if config.target_grasp == "consensus":
+        return [consensus_row(grasps)]
     if config.target_grasp == "first":
         return [0]
     if config.target_grasp == "each":
