@@ -15,4 +15,8 @@ stdout (--json: one line) and, for image_use, in WORKDIR/eval/STEP/image_use.jso
     python -m kosmos_jax.diagnostics.object_probe --workdir=W [--step=N] [--examples=2000] [--json]
         where a mosaic's named object is lost: does the tower see each photo's object, do the slots
         and the decoder know which quadrant the words name
+    python -m kosmos_jax.diagnostics.categories --workdir=W --scored=cornell-NAME [--json]
+        a scored synthetic folder's single-photo answers by object category, the part oracles beside them
+    python -m kosmos_jax.diagnostics.annotation_draws --workdir=W --scored=cornell-NAME [--draws=100] [--json]
+        the answers against fresh draws of each synthetic photo's grasps, beside the best answer found
 """

@@ -22,14 +22,12 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from kosmos_jax import commands
-from kosmos_jax.diagnostics.answer_errors import define_scored_run_flags, read_answers
-from kosmos_jax.diagnostics.part_oracles import SCORES, answered_grasps, nearest_truths, oracle_grasps, scored_records
+from kosmos_jax.diagnostics.answer_errors import define_scored_run_flags
+from kosmos_jax.diagnostics.part_oracles import SCORES, answered_grasps, nearest_truths, oracle_grasps, scored_folder_answers
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.instructions import group_instructions, text
 from kosmos_jax.text.formatter import FormatConfig
-from kosmos_jax.workdir.checkpoints import chosen_step
 from kosmos_jax.workdir.files import RunError
-from kosmos_jax.workdir.run import open_run
 
 META = "synthetic_meta.json"
 
@@ -67,15 +65,10 @@ def main(argv=None) -> int:
 
 
 def categories_command(args) -> None:
-    workdir = pathlib.Path(args.workdir)
     try:
-        if not args.scored:
-            raise RunError("give --scored=cornell-NAME: categories are known for a scored synthetic folder only")
-        run = open_run(workdir)
-        step = chosen_step(workdir, args.step)
-        records, protocol, folder = scored_records(run, step, args.scored)
-        figures = by_category(records, read_answers(workdir, step, args.scored), run.format_config, protocol,
-                              photo_categories(folder))
+        run, step, records, protocol, folder, answers = scored_folder_answers(
+            args, "categories are known for a scored synthetic folder only")
+        figures = by_category(records, answers, run.format_config, protocol, photo_categories(folder))
     except RunError as error:
         raise SystemExit(f"error: {error}") from None
     if args.json:

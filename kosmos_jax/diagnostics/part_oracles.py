@@ -96,6 +96,18 @@ def scored_records(run, step: int, scored: str) -> tuple[Sequence[Mapping], str,
     return made.records, "honest", results["cornell"]
 
 
+def scored_folder_answers(args, why: str):
+    """(run, step, records, protocol, folder, answers) of the answers `evaluate --cornell` wrote for the folder
+    that --scored names (args: --workdir, --step, --scored); a command that needs such a folder says `why`."""
+    if not args.scored:
+        raise RunError(f"give --scored=cornell-NAME: {why}")
+    workdir = pathlib.Path(args.workdir)
+    run = open_run(workdir)
+    step = chosen_step(workdir, args.step)
+    records, protocol, folder = scored_records(run, step, args.scored)
+    return run, step, records, protocol, folder, read_answers(workdir, step, args.scored)
+
+
 def main(argv=None) -> int:
     return commands.run_command(define_scored_run_flags, oracles_command, argv,
                                 prog="python -m kosmos_jax.diagnostics.part_oracles", doc=__doc__)
