@@ -3,7 +3,7 @@
     python -m kosmos_jax.diagnostics.annotation_draws --workdir=RUN --scored=cornell-synthetic-300-seed7 \
         [--step=N] [--draws=100] [--candidates=256] [--json]
 
-A synthetic photo's positive grasps are a draw: 2 to 7 grasps at random places on its parts
+A synthetic photo's positive grasps are a draw: up to 7 grasps at random places on its parts
 (sources/synthetic/scenes.draw_positives). A model sees the photo, never the draw, so no answer is
 sure to hit, and how likely an answer is to hit can be measured exactly here: the generator poses the
 photo's object again (scenes.posed_photo, checked against the folder's own grasps) and draws its

@@ -16,7 +16,8 @@ Settings (`FormatConfig`), after the paper's ablations (Tables IV and V):
   lying across the view with its middle, and the answer to an angle question asked without the location is
   one angle, not a mixture of the angles around a rim), or "consensus" (one, the grasp that, answered
   as a prediction, hits the most of the sample's grasps under the honest rectangle metric, the first on a
-  tie: where the annotation's grasps crowd, a mug's handle rather than its body's grasps at random angles).
+  tie: where the annotation's grasps crowd, a mug's handle rather than its body's grasps at random angles;
+  as make demo's fine-tune target it changed nothing beyond the seeds' spread, results/annotation_draws).
 An angle instruction already states the angle, so its answer is the location only.
 
 The text of a location is `grasp_text.format_grasp`'s, less the angle: it keeps every printed

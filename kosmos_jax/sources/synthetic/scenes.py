@@ -150,7 +150,8 @@ class Posed:
 
 
 def draw_positives(rng: np.random.Generator, posed: Posed) -> tuple[list[np.ndarray], list[str]]:
-    """One annotation of the posed object: 2 to 7 positive grasps (x, y, w, h, theta) and their parts."""
+    """One annotation of the posed object: its positive grasps (x, y, w, h, theta) and their parts; 2 to 7 are
+    tried, and a try that finds no antipodal grasp on its part adds none (possibly none at all)."""
     positives, parts_of = [], []
     for _ in range(int(rng.choice(POSITIVES[0], p=POSITIVES[1]))):
         k = posed.graspable[int(rng.choice(len(posed.graspable), p=posed.chances))]
