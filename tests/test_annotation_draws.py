@@ -87,7 +87,7 @@ def test_the_best_answer_hits_more_fresh_draws_than_a_random_target_does(folder)
 def test_a_folder_that_the_generator_did_not_write_is_refused(folder, tmp_path):
     records, views = records_of(folder)
     rows = answer_rows([(0, 0, 0.0)] * len(views))
-    with pytest.raises(RunError, match="has no synthetic_meta.json"):
+    with pytest.raises(RunError, match="synthetic_meta.json not found"):
         annotation_draws.annotation_draws(records, rows, CONFIG, tmp_path, draws=DRAWS)
     moved = [dict(record, answers=(np.asarray(record["answers"]) + [3, 0, 0, 0, 0]).tolist()) for record in records]
     with pytest.raises(RunError, match="does not have the folder's grasps"):

@@ -149,11 +149,10 @@ def photo_scores(answer: np.ndarray, instruction: Instruction, sets: Mapping[str
 
 
 def folder_header(folder: str | pathlib.Path) -> dict:
-    path = pathlib.Path(folder) / scenes.META_NAME
-    if not path.is_file():
-        raise RunError(f"{folder} has no {scenes.META_NAME}: only folders written by python -m "
-                       "kosmos_jax.sources.synthetic can be drawn again")
-    return json.loads(path.read_text())
+    try:
+        return scenes.read_header(folder)
+    except (FileNotFoundError, ValueError) as error:
+        raise RunError(f"{error}: only folders written by python -m kosmos_jax.sources.synthetic can be drawn again") from None
 
 
 def annotation_draws(records: Sequence[Mapping], rows: Sequence[Mapping], config, folder, draws: int = 100,

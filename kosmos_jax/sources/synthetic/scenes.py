@@ -27,7 +27,7 @@ API: plan(seed, photos) -> which object each photo shows; make_scene(rng, spec, 
 Scene(rgb, depth, positives, negatives, meta, object_mask); posed_photo(seed, index) -> a written
 photo's Scene again and its Posed object, on which draw_positives(rng, posed) draws other annotations
 of the same photo; write_dataset(out, photos, seed);
-read_meta(root) -> the per-photo metadata; is_partial_dataset(root) -> whether a folder is what
+read_meta(root) -> the per-photo metadata (read_header(root): with the set's seed); is_partial_dataset(root) -> whether a folder is what
 an interrupted write of older versions (straight into DIR) left behind. Objects:
 objects.py; drawing and depth: render.py; grasp rectangles: grasps.py (this package).
 """
@@ -390,6 +390,11 @@ def _write_files(out: pathlib.Path, photos: int, seed: int, progress: bool) -> d
 
 def read_meta(root) -> dict[str, dict]:
     """The per-photo metadata of a synthetic dataset under `root`: {"pcd0100": {...}, ...}."""
+    return read_header(root)["photos"]
+
+
+def read_header(root) -> dict:
+    """The whole synthetic_meta.json of a synthetic dataset under `root`: its seed, count, ... and "photos"."""
     path = pathlib.Path(root) / META_NAME
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: {root} is not a synthetic dataset (or predates its metadata)")
@@ -399,7 +404,7 @@ def read_meta(root) -> dict[str, dict]:
         raise ValueError(f"{path}: not valid JSON ({error})") from None
     if data.get("generator") != "kosmos_jax.sources.synthetic" or "photos" not in data:
         raise ValueError(f"{path}: not written by kosmos_jax.sources.synthetic")
-    return data["photos"]
+    return data
 
 
 def define_flags(flag_values: flags.FlagValues) -> None:
