@@ -23,13 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from kosmos_jax.models import generation, value_decoding
+from kosmos_jax.models import value_decoding
 from kosmos_jax.models.kosmos2 import abstract_model
 from kosmos_jax.models.mesh import make_mesh
-from kosmos_jax.models.preprocess import pixels
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.cornell_examples import cornell_examples
-from kosmos_jax.scoring.model_answers import fixed_streams
+from kosmos_jax.scoring.model_answers import answers_program
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.workdir.run import open_run
 
@@ -37,9 +36,10 @@ from kosmos_jax.workdir.run import open_run
 class RankedX(value_decoding.LocalMean):
     """The run's LocalMean, except that an x token is the (row % ranks)-th most likely allowed x value."""
 
-    def __init__(self, token_texts, window: int, angle_window: int, ranks: int, x_family: int):
+    def __init__(self, token_texts, window: int, angle_window: int, ranks: int):
         super().__init__(token_texts, window, angle_window)
-        self.ranks, self.x_family = ranks, x_family
+        self.ranks = ranks
+        self.x_family = int(self.family[value_decoding.value_tokens(token_texts)["x"][0][0]])
 
     def pick(self, logits, allowed):
         token = super().pick(logits, allowed)
@@ -50,15 +50,8 @@ class RankedX(value_decoding.LocalMean):
         return jnp.where(is_x, jnp.take_along_axis(order, rank[:, None], 1)[:, 0].astype(token.dtype), token)
 
 
-def _tokens_and_logits(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens, picker):
-    model = nnx.view(nnx.merge(graphdef, params, fixed_streams(rest)), deterministic=True)
-    embeds = model.image_embeds(pixels(images, model.config.vision.image_size), model.instruction_bag(ids, mask, image_mask))
-    return generation.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint,
-                               picker=picker, return_logits=True)
-
-
-def joint_mass(tokens, logits, ranks, picker, families) -> tuple[np.ndarray, np.ndarray]:
-    """(x values [ranks], p(x_i) p(y | x_i) [ranks, Y]) of one example's `ranks` decodes."""
+def joint_mass(tokens, logits, picker, families) -> tuple[np.ndarray, np.ndarray]:
+    """(x values [R], p(x_i) p(y | x_i) [R, Y]) of one example's R decodes."""
     x_ids, x_values = families["x"]
     y_ids, y_values = families["y"]
     x_step = int(np.flatnonzero(np.isin(tokens[0], x_ids))[0])
@@ -109,10 +102,9 @@ def main() -> None:
 
     texts = run.tokenizer.piece_texts()
     families = value_decoding.value_tokens(texts)
-    picker = RankedX(texts, windows["value_window"], windows["angle_window"], args.ranks, 0)
-    picker.x_family = int(picker.family[families["x"][0][0]])
+    picker = RankedX(texts, windows["value_window"], windows["angle_window"], args.ranks)
     graphdef, _, rest = nnx.split(abstract_model(run.model_config), nnx.Param, ...)
-    decode = jax.jit(functools.partial(_tokens_and_logits, graphdef, rest, picker=picker),
+    decode = jax.jit(functools.partial(answers_program, graphdef, rest, picker=picker, return_logits=True),
                      static_argnames=("constraint", "max_new_tokens"))
     masses = {}  # example index -> (xs, mass)
     for question, rows, (ids, mask, image_mask) in evaluation.batches:
@@ -125,7 +117,7 @@ def main() -> None:
         tokens, logits = np.asarray(tokens), np.asarray(logits)
         for k, index in enumerate(rows):
             block = slice(k * args.ranks, (k + 1) * args.ranks)
-            masses[index] = joint_mass(tokens[block], logits[block], args.ranks, picker, families)
+            masses[index] = joint_mass(tokens[block], logits[block], picker, families)
     rows_of = [instruction.examples.get("location", instruction.examples.get("grasp")) for instruction in evaluation.instructions]
     for radius in (float(r) for r in args.radii.split(",")):
         grasps = base.copy()

@@ -36,11 +36,13 @@ def fixed_streams(rest: nnx.State) -> nnx.State:
     return jax.tree.map(concrete, rest, is_leaf=lambda x: isinstance(x, nnx.Variable))
 
 
-def _answers(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens, picker):
+def answers_program(graphdef, rest, params, images, ids, mask, image_mask, *, constraint, max_new_tokens, picker,
+                    return_logits: bool = False):
+    """The generated tokens of a batch of prompts with their images (and each step's logits if asked), for jit."""
     model = nnx.view(nnx.merge(graphdef, params, fixed_streams(rest)), deterministic=True)
     embeds = model.image_embeds(pixels(images, model.config.vision.image_size), model.instruction_bag(ids, mask, image_mask))
     return generation.generate(model, ids, mask, image_mask, embeds, max_new_tokens=max_new_tokens, constraint=constraint,
-                           picker=picker)
+                               picker=picker, return_logits=return_logits)
 
 
 class Decoder:
@@ -51,7 +53,7 @@ class Decoder:
     def __init__(self, model_config: Kosmos2Config, mesh: Mesh, picker=None):
         graphdef, _, rest = nnx.split(abstract_model(model_config), nnx.Param, ...)
         self.replicated = NamedSharding(mesh, PartitionSpec())
-        self._jitted = jax.jit(functools.partial(_answers, graphdef, rest, picker=picker),
+        self._jitted = jax.jit(functools.partial(answers_program, graphdef, rest, picker=picker),
                                static_argnames=("constraint", "max_new_tokens"), out_shardings=self.replicated)
 
     def _global(self, array: np.ndarray) -> jax.Array:
