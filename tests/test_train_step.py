@@ -214,15 +214,14 @@ def test_steps_lower_the_loss_on_a_fixed_batch():
 
 
 @pytest.mark.slow  # 34 s (make test's --durations, 2026-11-27, 2 cores)
-@pytest.mark.parametrize("connector_dense_std", [1.0])
-def test_steps_learn_an_answer_only_the_image_holds_once_the_connector_passes_the_image(connector_dense_std):
+def test_steps_learn_an_answer_only_the_image_holds_once_the_connector_passes_the_image():
     """One prompt, eight photos, a different one-token answer to each: only the image path can lower
     the loss below log 8, and only with each row's own photo. At std 1 on unit-norm features, 200 steps
     learn it from the image: the loss with each row's own photo far below log 8, with another row's above it.
     At KOSMOS-2's connector init (std 0.02) the outcome is chaotic in float rounding and is not asserted:
     log 8 = 2.08 with the images unused on the machines of 2026-11-27, 1.75 on 2026-11-28's, 0.003 (learned)
     on 2026-12-05's, where std 1 ended at 0.196 (below 0.1 before)."""
-    cfg = NO_DROPOUT.replace(connector_dense_std=connector_dense_std)
+    cfg = NO_DROPOUT.replace(connector_dense_std=1.0)
     on = mesh.make_mesh(1, 1, 1, devices=jax.devices()[:1])
     tx, schedule = optimizer.make_optimizer(_opt_config(peak_lr=3e-3, end_lr=3e-3), total_steps=200)
     train_step = step.make_train_step(cfg, tx, schedule, on, microbatches=1, seed=0)
@@ -238,7 +237,8 @@ def test_steps_learn_an_answer_only_the_image_holds_once_the_connector_passes_th
     eval_step = step.make_eval_step(cfg, on)
     own = float(eval_step(train_state.params, batch)["loss"])
     swapped = float(eval_step(train_state.params, {**batch, "image": np.roll(batch["image"], 1, axis=0)})["loss"])
-    assert own < 0.5 and swapped > np.log(BATCH), (own, swapped)
+    # a quarter of log 8 with its own photo, more than log 8 with another's: the answer comes from the image
+    assert own < np.log(BATCH) / 4 and swapped > np.log(BATCH), (own, swapped)
 
 
 @pytest.mark.slow  # 38 s (make test's --durations, 2026-11-27, 2 cores)
