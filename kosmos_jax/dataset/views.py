@@ -68,14 +68,18 @@ def augment_config(copies: int, recipe: str, crop_policy: str, output_size: int 
                          output_size=output_size)
 
 
+def crop_matrices(keys, grasps, mask, image_shape: tuple[int, int], config: AugmentConfig):
+    """[B, 2, 3] the affines of the recipe's crop without rotation or translation, photo pixels -> view pixels."""
+    corners = jax.vmap(lambda k, g, m: affine.crop_corner(
+        k, g, m, image_shape, config.crop_size, config.centre_policy, config.integer_steps))(keys, grasps, mask)
+    zeros = jnp.zeros(corners.shape[:1], jnp.float32)
+    return affine.recipe_matrix(corners, zeros, jnp.zeros_like(corners), config.crop_size, config.output_size)
+
+
 @functools.partial(jax.jit, static_argnames=("config",))
 def _crop(images, grasps, mask, keys, config: AugmentConfig):
     """The crop of the recipe without rotation or translation: [B] views."""
-    height, width = images.shape[1:3]
-    corners = jax.vmap(lambda k, g, m: affine.crop_corner(
-        k, g, m, (height, width), config.crop_size, config.centre_policy, config.integer_steps))(keys, grasps, mask)
-    zeros = jnp.zeros(corners.shape[:1], jnp.float32)
-    matrices = affine.recipe_matrix(corners, zeros, jnp.zeros_like(corners), config.crop_size, config.output_size)
+    matrices = crop_matrices(keys, grasps, mask, images.shape[1:3], config)
     size = config.output_size
     warped = warp_images(images, matrices, (size, size), config.border)
     moved, kept, dropped = move_grasps(grasps.astype(jnp.float32), mask, matrices, size)

@@ -43,10 +43,10 @@ import numpy as np
 from absl import flags
 
 from kosmos_jax import commands, geometry
-from kosmos_jax.augment.affine import crop_corner, recipe_matrix
 from kosmos_jax.augment.pipeline import move_grasps
-from kosmos_jax.dataset.views import HONEST_TEST_CROP
+from kosmos_jax.dataset.views import HONEST_TEST_CROP, crop_matrices
 from kosmos_jax.diagnostics.answer_errors import define_scored_run_flags
+from kosmos_jax.diagnostics.categories import synthetic_header
 from kosmos_jax.diagnostics.part_oracles import answered_grasps, scored_folder_answers
 from kosmos_jax.metrics.success import grasp_success
 from kosmos_jax.scoring.instructions import Instruction, group_instructions, text
@@ -65,10 +65,9 @@ MAX_ROUNDS = 20
 
 def view_matrix() -> np.ndarray:
     """[2, 3] the honest test view's affine of a synthetic photo (dataset.views.evaluation_views)."""
-    crop = HONEST_TEST_CROP
-    corner = crop_corner(jax.random.PRNGKey(0), jnp.zeros((1, 5)), jnp.zeros(1, bool), (HEIGHT, WIDTH),
-                         crop.crop_size, crop.centre_policy, crop.integer_steps)
-    return np.asarray(recipe_matrix(corner, 0.0, jnp.zeros(2), crop.crop_size, crop.output_size))
+    matrices = crop_matrices(jax.random.PRNGKey(0)[None], jnp.zeros((1, 1, 5)), jnp.zeros((1, 1), bool),
+                             (HEIGHT, WIDTH), HONEST_TEST_CROP)
+    return np.asarray(matrices[0])
 
 
 def in_view(draws: Sequence[Sequence[np.ndarray]], matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -148,19 +147,12 @@ def photo_scores(answer: np.ndarray, instruction: Instruction, sets: Mapping[str
             "best_expected": float(hit_rates(chosen, *estimate)[0]), "best": float(hit_rates(chosen, *own)[0])}
 
 
-def folder_header(folder: str | pathlib.Path) -> dict:
-    try:
-        return scenes.read_header(folder)
-    except (FileNotFoundError, ValueError) as error:
-        raise RunError(f"{error}: only folders written by python -m kosmos_jax.sources.synthetic can be drawn again") from None
-
-
 def annotation_draws(records: Sequence[Mapping], rows: Sequence[Mapping], config, folder, draws: int = 100,
                      candidates: int = 256, draw_seed: int = 0, progress: bool = False) -> dict:
     """{"instructions", "draws", "accuracy": {score: percent}, "categories": {category: {"instructions", score...}}}."""
     if draws < 2 or candidates < 1:
         raise RunError(f"draws must be >= 2 and candidates >= 1, got {draws} and {candidates}")
-    header = folder_header(folder)
+    header = synthetic_header(folder, "only folders written by python -m kosmos_jax.sources.synthetic can be drawn again")
     instructions = [i for i in group_instructions(records) if i.scene == "single"]
     if not instructions:
         raise RunError(f"{folder}: the scored answers hold no single-photo instruction")

@@ -26,19 +26,25 @@ from kosmos_jax.diagnostics.answer_errors import define_scored_run_flags
 from kosmos_jax.diagnostics.part_oracles import SCORES, answered_grasps, nearest_truths, oracle_grasps, scored_folder_answers
 from kosmos_jax.scoring import tally
 from kosmos_jax.scoring.instructions import group_instructions, text
+from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.text.formatter import FormatConfig
 from kosmos_jax.workdir.files import RunError
 
-META = "synthetic_meta.json"
+META = scenes.META_NAME
+
+
+def synthetic_header(folder: str | pathlib.Path, why: str) -> dict:
+    """scenes.read_header of a folder the synthetic generator wrote, its refusals as RunError ending in `why`."""
+    try:
+        return scenes.read_header(folder)
+    except (FileNotFoundError, ValueError) as error:
+        raise RunError(f"{error}: {why}") from None
 
 
 def photo_categories(folder: str | pathlib.Path) -> dict[str, str]:
     """{photo id: category} of a synthetic folder, from its synthetic_meta.json."""
-    path = pathlib.Path(folder) / META
-    if not path.is_file():
-        raise RunError(f"{folder} has no {META}: categories are known only for folders written by "
-                       "python -m kosmos_jax.sources.synthetic")
-    return {photo: about["category"] for photo, about in json.loads(path.read_text())["photos"].items()}
+    header = synthetic_header(folder, "categories are known only for folders written by python -m kosmos_jax.sources.synthetic")
+    return {photo: about["category"] for photo, about in header["photos"].items()}
 
 
 def by_category(records: Sequence[Mapping], rows: Sequence[Mapping], config: FormatConfig, protocol: str,
