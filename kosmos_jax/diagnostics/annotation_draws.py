@@ -19,7 +19,7 @@ a folder that `python -m kosmos_jax.evaluate --cornell=FOLDER` scored, by photo 
   parts_draw      the centre of one grasp and the angle of another, each taken at random from its own fresh
                   draw: what a model with individual outputs (the centre and the angle asked apart) that
                   answered samples of its training targets would score
-  consensus_draw  target_draw with the draw's consensus grasp (text.formatter.consensus_row: the one that hits
+  consensus_draw  target_draw with the draw's consensus grasp (text.target_rows.consensus_row: the one that hits
                   the most of its own draw's grasps) instead of one at random: what the target_grasp
                   "consensus" asks a model to answer
   best_expected   for each photo the one grasp, among up to CANDIDATES grasps of DRAWS fresh draws, that
@@ -52,7 +52,7 @@ from kosmos_jax.metrics.success import grasp_success
 from kosmos_jax.scoring.instructions import Instruction, group_instructions, text
 from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.sources.synthetic.render import HEIGHT, WIDTH
-from kosmos_jax.text.formatter import consensus_row
+from kosmos_jax.text.target_rows import consensus_row
 from kosmos_jax.workdir.files import RunError
 
 SCORES = ("model", "model_expected", "target_draw", "parts_draw", "consensus_draw", "best_expected", "best")

@@ -9,15 +9,7 @@ Settings (`FormatConfig`), after the paper's ablations (Tables IV and V):
   ends the prompt and only the value is the target, so a model is asked for one field at a time;
   `prompt_cues` lists the cues a decoder puts after the instruction.
 - loss_on: "target" (the answer and </s>) or "instruction" (every text token after </image>).
-- target_grasp: which of a sample's answering grasps become targets: "first" (row 0: for angle
-  and part instructions the grasp the sentence was made from), "each" (one example per grasp)
-  or "random" (one, drawn with the given generator), or "top" (one, a function of the grasps' centres: the
-  grasp nearest the point that lies one spread above their mean, so a ring answers with its top, a bar
-  lying across the view with its middle, and the answer to an angle question asked without the location is
-  one angle, not a mixture of the angles around a rim), or "consensus" (one, the grasp that, answered
-  as a prediction, hits the most of the sample's grasps under the honest rectangle metric, the first on a
-  tie: where the annotation's grasps crowd, a mug's handle rather than its body's grasps at random angles;
-  as make demo's fine-tune target it changed nothing beyond the seeds' spread, results/annotation_draws).
+- target_grasp: which of a sample's answering grasps become targets (`kosmos_jax.text.target_rows`).
 An angle instruction already states the angle, so its answer is the location only.
 
 The text of a location is `grasp_text.format_grasp`'s, less the angle: it keeps every printed
@@ -34,11 +26,10 @@ import numpy as np
 
 from kosmos_jax import grasp_text
 from kosmos_jax.grasp_text import split_cue  # also formatter.split_cue, for the decoder's grammar
-from kosmos_jax.metrics.success import grasp_success
+from kosmos_jax.text.target_rows import TARGET_CHOICES, chosen_rows
 
 LOSS_MODES = ("target", "instruction")
 OVERFLOW_MODES = ("error", "truncate")
-TARGET_CHOICES = ("first", "each", "random", "top", "consensus")
 PARTS = ("grasp", "location", "angle")
 
 # which of (x, y, w, h, theta) the text of each part states, by representation
@@ -151,47 +142,13 @@ def prompt_cues(config: FormatConfig, answer: str = "grasp") -> list[tuple[str, 
     return [(part, cue) for part, cue, _, _ in grasp_parts(probe, answer, config)]
 
 
-def top_row(grasps: np.ndarray) -> int:
-    """The row of the grasp nearest mean(centres) - (0, spread), spread the largest distance of a centre from
-    the mean (image y grows downwards); the first such row on a tie."""
-    centres = np.asarray(grasps, np.float64)[:, :2]
-    mean = centres.mean(axis=0)
-    spread = float(np.max(np.linalg.norm(centres - mean, axis=1)))
-    return int(np.argmin(np.linalg.norm(centres - (mean - np.array([0.0, spread])), axis=1)))
-
-
-def consensus_row(grasps: np.ndarray) -> int:
-    """The row of the grasp whose (x, y, theta), as a prediction, hits the most of `grasps` [N, 5] (the
-    rectangle metric with each one's own w and h, as the honest protocol scores); the first such row on a tie."""
-    grasps = np.asarray(grasps, np.float32)
-    count = len(grasps)
-    predictions = np.repeat(grasps[:, [0, 1, 4]], count, axis=0)  # row i * count + j: grasp i against grasp j
-    hits = grasp_success(predictions, np.tile(grasps, (count, 1))[:, None], np.ones((count * count, 1), bool))
-    return int(np.argmax(np.asarray(hits).reshape(count, count).sum(axis=1)))
-
-
-def _chosen_rows(grasps: np.ndarray, config: FormatConfig, rng: np.random.Generator | None) -> list[int]:
-    count = grasps.shape[0]
-    if config.target_grasp == "top":
-        return [top_row(grasps)]
-    if config.target_grasp == "consensus":
-        return [consensus_row(grasps)]
-    if config.target_grasp == "first":
-        return [0]
-    if config.target_grasp == "each":
-        return list(range(count))
-    if rng is None:
-        raise ValueError("target_grasp='random' needs a numpy Generator")
-    return [int(rng.integers(count))]
-
-
 def format_sample(sample, config: FormatConfig, rng: np.random.Generator | None = None) -> list[TextExample]:
     """The text examples of one `kosmos_jax.instruct.Sample`."""
     answers = np.asarray(sample.grasps, np.float64)
     if answers.ndim != 2 or answers.shape[1] != 5 or answers.shape[0] == 0:
         raise ValueError(f"sample of photos {sample.photo_ids} has no grasps to answer with (shape {answers.shape})")
     examples = []
-    for row in _chosen_rows(answers, config, rng):
+    for row in chosen_rows(answers, config.target_grasp, rng):
         grasp = answers[row]
         for part, cue, value, mask in grasp_parts(grasp, sample.answer, config):
             examples.append(
