@@ -185,6 +185,9 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     # (train/run_start.py: its checkpoint init_step's parameters, -1 = the newest, and its tokenizer)
     config.init_from = ""
     config.init_step = -1
+    # True: a start whose vision tower has another image_size (the same patch_size) is taken with its position
+    # embeddings resampled to this config's grid of patches (train/run_start.py)
+    config.init_resample_positions = False
     config.require_init = False
     config.mesh = mesh_config()
     # how the answers are read (kosmos_jax.models.value_decoding): a coordinate value token as the local

@@ -2,6 +2,7 @@
 starts from exactly the parameters of the checkpoint it names, reads its token ids with that run's
 tokenizer, records where it started, and refuses another model or another tokenizer."""
 
+import dataclasses
 import pathlib
 
 import jax
@@ -9,8 +10,11 @@ import numpy as np
 import pytest
 
 from kosmos_jax.experiments.spec import load_config
+from kosmos_jax.models import patch_grid
+from kosmos_jax.models.config import TINY
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.train import trainer
+from kosmos_jax.train.run_start import check_same_model
 from kosmos_jax.train.optimizer import make_optimizer
 from kosmos_jax.workdir.export import export_pretrained
 from kosmos_jax.workdir.run import open_run
@@ -122,3 +126,40 @@ def test_a_variant_that_needs_a_start_says_what_to_give(tmp_path):
     config = load_config("configs/kosmos_e.py:demo_finetune")
     with pytest.raises(ValueError, match="give --config.init_from=FOLDER"):
         trainer.initial_params(config, None, None, None, {})
+
+
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
+def test_a_start_on_a_finer_grid_takes_every_weight_and_resamples_the_positions(pretrained, exported, tmp_path):
+    for start, step in ((pretrained, 2), (exported, 1)):  # a workdir's newest checkpoint; the folder holds step 1
+        config = finetune_config(start, tmp_path / start.name, init_resample_positions=True)
+        side = TINY.vision.image_size // TINY.vision.patch_size  # the tiny variants' tower
+        config.model.vision.image_size = 2 * TINY.vision.image_size
+        got = jax.tree.leaves_with_path(task_of(config).init_state().params)
+        want = jax.tree.leaves_with_path(open_run(pretrained).params(step)[1])
+        assert [path for path, _ in got] == [path for path, _ in want]
+        for (path, new), (_, old) in zip(got, want):
+            if "position_embedding" in jax.tree_util.keystr(path):
+                assert new.shape == (1 + (2 * side) ** 2, old.shape[1])
+                np.testing.assert_array_equal(np.asarray(new), np.asarray(patch_grid.resample_positions(old, 2 * side)))
+            else:
+                np.testing.assert_array_equal(np.asarray(new), np.asarray(old))
+
+
+@pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
+def test_another_image_size_is_refused_without_resampling_and_says_how(pretrained, tmp_path):
+    config = finetune_config(pretrained, tmp_path)
+    config.model.vision.image_size = 2 * TINY.vision.image_size
+    with pytest.raises(ValueError, match="image_size .*init_resample_positions=True resamples"):
+        task_of(config).init_state()
+
+
+def test_resampling_allows_another_image_size_and_nothing_else():
+    finer = TINY.replace(vision=dataclasses.replace(TINY.vision, image_size=2 * TINY.vision.image_size))
+    check_same_model(TINY, finer, "runs/start", resample_positions=True)
+    coarser_patches = finer.replace(vision=dataclasses.replace(finer.vision, patch_size=2 * TINY.vision.patch_size))
+    with pytest.raises(ValueError, match="patch_size") as refused:
+        check_same_model(TINY, coarser_patches, "runs/start", resample_positions=True)
+    assert "init_resample_positions" not in str(refused.value)
+    deeper = finer.replace(text=dataclasses.replace(TINY.text, layers=3))
+    with pytest.raises(ValueError, match="layers"):
+        check_same_model(TINY, deeper, "runs/start", resample_positions=True)

@@ -1,5 +1,6 @@
-"""The vision tower's square grid of patches: which patch holds a point, a patch's centre, and a
-fixed sin-cos code of each cell (what `connector_extensions` adds to the patch tokens).
+"""The vision tower's square grid of patches: which patch holds a point, a patch's centre, a fixed
+sin-cos code of each cell (what `connector_extensions` adds to the patch tokens), and position
+embeddings resampled from one grid to another.
 
 Centres are (x, y) in units of the view's side; patches are row-major, the class token first where
 tokens are given.
@@ -52,3 +53,18 @@ def grid_code(patches: int, width: int) -> jnp.ndarray:
     angles_x, angles_y = x[:, None] * frequencies, y[:, None] * frequencies
     code = np.concatenate([np.sin(angles_x), np.cos(angles_x), np.sin(angles_y), np.cos(angles_y)], axis=1)
     return jnp.asarray(np.concatenate([np.zeros((1, width)), code]), jnp.float32)
+
+
+def resample_positions(table: jax.Array, side: int) -> jax.Array:
+    """[1 + n * n, D] position embeddings (the class token's row, then the row-major n x n grid's) ->
+    [1 + side * side, D]: the class row kept, the grid's rows resized as an image whose pixels are the cells
+    (half-cell aligned, as cell_centre and grid_code place them; bilinear, antialiased when shrinking), so
+    that a tower trained on one grid starts on another: ViT's fine-tuning at a new resolution."""
+    old = grid_side(table.shape[0] - 1)
+    if side < 1:
+        raise ValueError(f"a grid side must be at least 1, got {side}")
+    if side == old:
+        return table
+    grid = table[1:].reshape(old, old, table.shape[-1])
+    resized = jax.image.resize(grid.astype(jnp.float32), (side, side, table.shape[-1]), method="bilinear")
+    return jnp.concatenate([table[:1], resized.reshape(side * side, -1).astype(table.dtype)])
