@@ -1,0 +1,64 @@
+"""Two runs' answers to the same instructions, paired: how many each got right that the other did not.
+
+    python scripts/paired_runs.py --baseline=demo_out/run --candidate=runs/ft/px224_s0 \
+        [--scored=cornell-synthetic-300-seed7] [--step=800]
+
+Reads the answers.jsonl that `python -m kosmos_jax.evaluate --cornell=...` wrote for each run (the same folder and
+kinds: the pairs are checked example by example) and prints one JSON line per scene (single photos, mosaics): the
+instructions, each run's right answers, those right only for one of them, and McNemar's z, (only candidate - only
+baseline) / sqrt(their sum): a difference between two runs on the same instructions beyond what chance splits of
+the discordant pairs give (|z| > 2 at about 5%). Every part row of an instruction carries the instruction's result;
+the first row of each stands for it.
+"""
+
+import argparse
+import json
+import math
+import pathlib
+
+
+def instruction_results(workdir: str, scored: str, step: int) -> dict[int, tuple]:
+    """{first example index: (kind, scene, target text, right)} of each instruction the run answered."""
+    path = pathlib.Path(workdir) / "eval" / str(step) / scored / "answers.jsonl"
+    if not path.is_file():
+        raise SystemExit(f"error: no {path}: score the folder first (python -m kosmos_jax.evaluate --workdir={workdir} --cornell=...)")
+    results, previous = {}, None
+    for line in path.read_text().splitlines():
+        row = json.loads(line)
+        key = (row["kind"], tuple(row["photo_ids"]), row["instruction"])
+        if key != previous:  # an instruction's parts are consecutive rows
+            results[row["example"]] = (row["kind"], row["scene"], row["target_text"], bool(row["correct"]))
+        previous = key
+    return results
+
+
+def paired(baseline: dict, candidate: dict) -> list[dict]:
+    if baseline.keys() != candidate.keys() or any(baseline[k][:3] != candidate[k][:3] for k in baseline):
+        raise SystemExit("error: the two runs did not answer the same instructions (another folder, kinds or tokenizer)")
+    out = []
+    for scene in sorted({value[1] for value in baseline.values()}):
+        keys = [k for k, value in baseline.items() if value[1] == scene]
+        only_candidate = sum(candidate[k][3] and not baseline[k][3] for k in keys)
+        only_baseline = sum(baseline[k][3] and not candidate[k][3] for k in keys)
+        discordant = only_candidate + only_baseline
+        out.append({"scene": scene, "instructions": len(keys), "baseline_right": sum(baseline[k][3] for k in keys),
+                    "candidate_right": sum(candidate[k][3] for k in keys), "only_candidate": only_candidate,
+                    "only_baseline": only_baseline,
+                    "mcnemar_z": round((only_candidate - only_baseline) / math.sqrt(discordant), 2) if discordant else 0.0})
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--baseline", required=True)
+    parser.add_argument("--candidate", required=True)
+    parser.add_argument("--scored", default="cornell-synthetic-300-seed7")
+    parser.add_argument("--step", type=int, default=800)
+    args = parser.parse_args()
+    for line in paired(instruction_results(args.baseline, args.scored, args.step),
+                       instruction_results(args.candidate, args.scored, args.step)):
+        print(json.dumps(line))
+
+
+if __name__ == "__main__":
+    main()
