@@ -1,7 +1,7 @@
 """Two runs' answers to the same instructions, paired: how many each got right that the other did not.
 
     python scripts/paired_runs.py --baseline=demo_out/run --candidate=runs/ft/px224_s0 \
-        [--scored=cornell-synthetic-300-seed7] [--step=800]
+        [--scored=cornell-synthetic-300-seed7] [--step=N]
 
 Reads the answers.jsonl that `python -m kosmos_jax.evaluate --cornell=...` wrote for each run (the same folder and
 kinds: the pairs are checked example by example) and prints one JSON line per scene (single photos, mosaics): the
@@ -15,26 +15,29 @@ import argparse
 import json
 import math
 import pathlib
+import sys
+
+from kosmos_jax.diagnostics.answer_errors import read_answers
+from kosmos_jax.workdir.checkpoints import chosen_step
+from kosmos_jax.workdir.files import RunError
 
 
-def instruction_results(workdir: str, scored: str, step: int) -> dict[int, tuple]:
-    """{first example index: (kind, scene, target text, right)} of each instruction the run answered."""
-    path = pathlib.Path(workdir) / "eval" / str(step) / scored / "answers.jsonl"
-    if not path.is_file():
-        raise SystemExit(f"error: no {path}: score the folder first (python -m kosmos_jax.evaluate --workdir={workdir} --cornell=...)")
-    results, previous = {}, None
-    for line in path.read_text().splitlines():
-        row = json.loads(line)
-        key = (row["kind"], tuple(row["photo_ids"]), row["instruction"])
-        if key != previous:  # an instruction's parts are consecutive rows
+def instruction_results(rows: list[dict]) -> dict[int, tuple]:
+    """{first example index: (kind, scene, target text, right)} of each instruction in evaluate's answer rows
+    (an instruction's parts are consecutive rows, each part once)."""
+    results, key, parts = {}, None, set()
+    for row in rows:
+        row_key = (row["kind"], tuple(row["photo_ids"]), row["instruction"])
+        if row_key != key or row["part"] in parts:
             results[row["example"]] = (row["kind"], row["scene"], row["target_text"], bool(row["correct"]))
-        previous = key
+            key, parts = row_key, set()
+        parts.add(row["part"])
     return results
 
 
 def paired(baseline: dict, candidate: dict) -> list[dict]:
     if baseline.keys() != candidate.keys() or any(baseline[k][:3] != candidate[k][:3] for k in baseline):
-        raise SystemExit("error: the two runs did not answer the same instructions (another folder, kinds or tokenizer)")
+        raise RunError("the two runs did not answer the same instructions (another folder, kinds or tokenizer)")
     out = []
     for scene in sorted({value[1] for value in baseline.values()}):
         keys = [k for k, value in baseline.items() if value[1] == scene]
@@ -53,10 +56,15 @@ def main() -> None:
     parser.add_argument("--baseline", required=True)
     parser.add_argument("--candidate", required=True)
     parser.add_argument("--scored", default="cornell-synthetic-300-seed7")
-    parser.add_argument("--step", type=int, default=800)
+    parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: each run's newest)")
     args = parser.parse_args()
-    for line in paired(instruction_results(args.baseline, args.scored, args.step),
-                       instruction_results(args.candidate, args.scored, args.step)):
+    try:
+        answers = [read_answers(pathlib.Path(workdir), chosen_step(pathlib.Path(workdir), args.step), args.scored)
+                   for workdir in (args.baseline, args.candidate)]
+        lines = paired(*(instruction_results(rows) for rows in answers))
+    except RunError as error:
+        sys.exit(f"error: {error}")
+    for line in lines:
         print(json.dumps(line))
 
 

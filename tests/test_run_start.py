@@ -130,9 +130,9 @@ def test_a_variant_that_needs_a_start_says_what_to_give(tmp_path):
 
 @pytest.mark.slow  # make test's --durations, 2026-11-28, 2 cores: its trained run's set-up took 1-2 minutes
 def test_a_start_on_a_finer_grid_takes_every_weight_and_resamples_the_positions(pretrained, exported, tmp_path):
+    side = TINY.vision.image_size // TINY.vision.patch_size  # the tiny variants' tower
     for start, step in ((pretrained, 2), (exported, 1)):  # a workdir's newest checkpoint; the folder holds step 1
         config = finetune_config(start, tmp_path / start.name, init_resample_positions=True)
-        side = TINY.vision.image_size // TINY.vision.patch_size  # the tiny variants' tower
         config.model.vision.image_size = 2 * TINY.vision.image_size
         got = jax.tree.leaves_with_path(task_of(config).init_state().params)
         want = jax.tree.leaves_with_path(open_run(pretrained).params(step)[1])

@@ -62,7 +62,8 @@ from kosmos_jax.dataset.checks import BuildCheckError, check_example, check_sepa
 from kosmos_jax.dataset.inputs import RULE_KINDS, WordSource, object_words, read_photos, word_source, words_unknown
 from kosmos_jax.dataset.views import augment_config, count_views, make_views
 from kosmos_jax.text import layout
-from kosmos_jax.text.formatter import LOSS_MODES, OVERFLOW_MODES, TARGET_CHOICES, FormatConfig, format_sample
+from kosmos_jax.text.formatter import LOSS_MODES, OVERFLOW_MODES, FormatConfig, format_sample
+from kosmos_jax.text.target_rows import TARGET_CHOICES
 from kosmos_jax.text.tokenizer import load_tokenizer, train_tokenizer
 
 # BuildConfig fields that say where and whether to write, not what: left out of the identity

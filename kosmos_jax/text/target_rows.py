@@ -9,8 +9,8 @@
   the honest rectangle metric, the first on a tie: where the annotation's grasps crowd, a mug's handle
   rather than its body's grasps at random angles. As make demo's fine-tune target it changed nothing
   beyond the seeds' spread (results/annotation_draws). It scores N x N pairs through the jit metric,
-  one compile for each grasp count met: 4,800 samples of 2 to 7 grasps took 3.1 s after 9.9 s for the first
-  50 (2 cores, beside a training run, 2026-12-06).
+  one compile for each grasp count met: 4,800 random sets of 2 to 7 grasps took 3.1 s after 9.9 s for the
+  first 50 (2 cores, beside a training run, 2026-12-06).
 """
 
 from __future__ import annotations

@@ -102,7 +102,7 @@ def start_params(config, model_config, mesh):
 
 
 def with_resampled_positions(params, side: int):
-    """`params` (an nnx.State of the model) with the vision tower's position embeddings resampled to a side x side
+    """`params` (an nnx.State of the model, changed in place) with the vision tower's position embeddings resampled to a side x side
     grid (patch_grid.resample_positions), placed as the old table was (a loaded folder's arrays are not committed to
     a device, and the new one must not be either: jit places them all on the mesh)."""
     table = params["vision_model"]["model"]["embeddings"]["position_embedding"]["embedding"]
@@ -115,8 +115,7 @@ def with_resampled_positions(params, side: int):
 def check_same_model(loaded_config, model_config, init_from, resample_positions: bool = False) -> None:
     """ValueError naming the difference when a loaded model is not `model_config`; with `resample_positions` a
     vision tower that differs only in image_size (whose position embeddings can be resampled) passes."""
-    resized = dataclasses.replace(
-        loaded_config, vision=dataclasses.replace(loaded_config.vision, image_size=model_config.vision.image_size))
+    resized = loaded_config.replace(vision=dataclasses.replace(loaded_config.vision, image_size=model_config.vision.image_size))
     if _same(resized if resample_positions else loaded_config, model_config):
         return
     hint = "" if resample_positions or not _same(resized, model_config) else \

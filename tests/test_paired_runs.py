@@ -1,0 +1,45 @@
+"""scripts/paired_runs.py: two runs' answers to the same instructions, counted pair by pair."""
+
+import importlib.util
+import math
+import pathlib
+
+import pytest
+
+from kosmos_jax.workdir.files import RunError
+
+SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "scripts" / "paired_runs.py"
+spec = importlib.util.spec_from_file_location("paired_runs", SCRIPT)
+paired_runs = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(paired_runs)
+
+
+def rows(rights: list[bool], scene: str = "single") -> list[dict]:
+    """evaluate's answer rows of one NON instruction a photo, each in two parts, the same photo twice in a row
+    for the last two (as two views of one photo would be)."""
+    out = []
+    for number, right in enumerate(rights):
+        photo = f"p{min(number, len(rights) - 2)}"
+        for part in ("location", "angle"):
+            out.append({"example": len(out), "kind": "non", "scene": scene, "part": part, "photo_ids": [photo],
+                        "instruction": "", "target_text": f"t{number}{part}", "correct": right})
+    return out
+
+
+def test_each_instruction_counts_once_and_the_discordant_pairs_give_mcnemars_z():
+    baseline = paired_runs.instruction_results(rows([True, True, False, False, True]))
+    candidate = paired_runs.instruction_results(rows([True, False, True, True, True]))
+    assert sorted(baseline) == [0, 2, 4, 6, 8]  # the repeated photo still starts a new instruction
+    (line,) = paired_runs.paired(baseline, candidate)
+    assert line == {"scene": "single", "instructions": 5, "baseline_right": 3, "candidate_right": 4,
+                    "only_candidate": 2, "only_baseline": 1, "mcnemar_z": round(1 / math.sqrt(3), 2)}
+
+
+def test_runs_that_answered_other_instructions_are_refused():
+    baseline = paired_runs.instruction_results(rows([True, False]))
+    with pytest.raises(RunError, match="did not answer the same instructions"):
+        paired_runs.paired(baseline, paired_runs.instruction_results(rows([True, False, True])))
+    other = rows([True, False])
+    other[2]["target_text"] = "another target"
+    with pytest.raises(RunError, match="did not answer the same instructions"):
+        paired_runs.paired(baseline, paired_runs.instruction_results(other))
