@@ -3,6 +3,7 @@ starts from exactly the parameters of the checkpoint it names, reads its token i
 tokenizer, records where it started, and refuses another model or another tokenizer."""
 
 import dataclasses
+import json
 import pathlib
 
 import jax
@@ -163,3 +164,21 @@ def test_resampling_allows_another_image_size_and_nothing_else():
     deeper = finer.replace(text=dataclasses.replace(TINY.text, layers=3))
     with pytest.raises(ValueError, match="layers"):
         check_same_model(TINY, deeper, "runs/start", resample_positions=True)
+
+
+@pytest.mark.slow  # a tiny fine-tune's build and one step: about a minute on 2 cores
+def test_a_run_trains_on_the_finer_grid_it_started_from(exported, tmp_path):
+    config = finetune_config(exported, tmp_path / "data", init_resample_positions=True)
+    config.model.vision.image_size = 2 * TINY.vision.image_size
+    config.train.steps, config.train.checkpoint_every, config.train.grasp_eval_at_end = 2, 1, False
+    config.optimizer.warmup_steps = 1
+    workdir = tmp_path / "run"
+    trainer.train(config, workdir)
+    step, params = open_run(workdir).params(None)
+    table = next(value for path, value in jax.tree.leaves_with_path(params)
+                 if "position_embedding" in jax.tree_util.keystr(path))
+    side = 2 * TINY.vision.image_size // TINY.vision.patch_size
+    assert step == 2 and table.shape == (1 + side**2, TINY.vision.hidden_size)
+    losses = [line["loss"] for line in map(json.loads, (workdir / "metrics.jsonl").read_text().splitlines())
+              if "loss" in line and "split" not in line]
+    assert losses and all(np.isfinite(losses))

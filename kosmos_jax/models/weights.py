@@ -30,6 +30,7 @@ TIED_HEAD = "text_model.lm_head.weight"
 EMBED_TOKENS = "text_model.model.embed_tokens.weight"
 # Buffers some checkpoints carry; computed here, never loaded.
 IGNORED_KEYS = ("vision_model.model.embeddings.position_ids", "text_model.model.embed_positions.weights")
+VISION_POSITIONS = "vision_model.model.embeddings.position_embedding.weight"  # the tower's [1 + patches, D] table
 
 
 def hf_key(path: tuple) -> str:

@@ -105,7 +105,7 @@ def with_resampled_positions(params, side: int):
     """`params` (an nnx.State of the model, changed in place) with the vision tower's position embeddings resampled to a side x side
     grid (patch_grid.resample_positions), placed as the old table was (a loaded folder's arrays are not committed to
     a device, and the new one must not be either: jit places them all on the mesh)."""
-    table = params["vision_model"]["model"]["embeddings"]["position_embedding"]["embedding"]
+    table = next(variable for path, variable in nnx.to_flat_state(params) if weights.hf_key(path) == weights.VISION_POSITIONS)
     old = table.get_value()
     new = patch_grid.resample_positions(old, side)
     table.set_value(jax.device_put(new, old.sharding) if old.committed else new)
