@@ -11,28 +11,31 @@
         --config.out=demo_g6000                                    # make demo from 2026-11-30 to 2026-12-01
     python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding10000 \
         --config.out=demo_g10000                                   # make demo on 2026-12-01
+    python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_grounded \
+        --config.init_from=results/pretrain/grounding14000 --config.steps=800 --config.out=demo_g14000
+                                                                   # make demo from 2026-12-04 to 2026-12-06
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 
 import ml_collections
 
-from kosmos_jax.experiments.spec import GROUNDING_START
+from kosmos_jax.experiments.spec import DEMO_START
 
 
 def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     tiny = arg == "tiny"
     config = ml_collections.ConfigDict()
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
-    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_grounded"  # "": no training
-    # 0: the training config's own train.steps. make demo fine-tunes for 800 steps, twice demo_grounded's 400 (which
-    # the experiments' arms keep): single photos 59.71 against 57.88 on 300 validation scenes, mosaics 20.92 against
-    # 19.43, the mean of three seeds, every seed up in both (results/finetune_length)
-    config.steps = 0 if tiny else 800
+    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_grounded224"  # "": no training
+    # 0: the training config's own train.steps (demo_grounded224's 400: its 800 read more on validation mosaics, but
+    # at 224 px they take make demo past its 15 minutes; results/finer_grid/README.md)
+    config.steps = 0
     config.train_seed = -1  # -1: the training config's own train.seed; another seed wants its own config.out
     # a run's workdir or an exported folder to start from (relative to the repository root), given to the
     # training config as its config.init_from; "": from scratch. The default is the committed grounding start,
-    # pretrained on scenes made on the fly from seeds no demo test or validation set uses (results/pretrain/README.md)
-    config.init_from = "" if tiny else GROUNDING_START
+    # pretrained on scenes made on the fly from seeds no demo test or validation set uses (results/pretrain/README.md,
+    # results/finer_grid/README.md)
+    config.init_from = "" if tiny else DEMO_START
     config.photos = 24 if tiny else 60  # synthetic photos of the no-learning table (object-wise needs >= 5 objects)
     config.seed = 0
     # the trained model on scenes it never saw (another seed): NON on each, multi-object kinds on mosaics

@@ -1,5 +1,5 @@
-"""configs/kosmos_e.py: every variant loads; demo_photos, demo_photos_finetune and demo_gpu change only
-what they say."""
+"""configs/kosmos_e.py: every variant loads; demo_photos, demo_photos_finetune, demo_grounded, demo_grounded224 and
+demo_gpu change only what they say."""
 
 import pytest
 
@@ -56,11 +56,20 @@ def test_demo_grounded_is_the_fine_tune_with_the_instruction_reading_connector_o
     assert grounded["require_init"] and grounded["model"]["connector_instruction"]
     assert (grounded["data"]["build"]["kinds"], grounded["data"]["build"]["max_length"]) == ("non,multi", 128)
     assert grounded["train"]["steps"] == grounded["train"]["eval_every"] == tune["train"]["steps"] // 2
-    # make demo fine-tunes twice as long (configs/demo.py); its tiny smoke run keeps the config's own steps
-    demo = config_module("configs/demo.py")
-    assert demo.get_config().steps == tune["train"]["steps"] and demo.get_config("tiny").steps == 0
     for config in (tune, grounded):
         config.pop("variant"), config["model"].pop("connector_instruction")
         config["data"]["build"].pop("kinds"), config["data"]["build"].pop("max_length")
         config["train"].pop("steps"), config["train"].pop("eval_every")
     assert grounded == tune
+
+
+def test_demo_grounded224_is_demo_grounded_on_a_16_by_16_grid_and_make_demo_trains_it_for_its_own_steps(kosmos_e):
+    grounded, finer = kosmos_e.get_config("demo_grounded").to_dict(), kosmos_e.get_config("demo_grounded224").to_dict()
+    assert (grounded["model"]["vision"]["image_size"], finer["model"]["vision"]["image_size"]) == (112, 224)
+    assert finer["model"]["vision"]["image_size"] // finer["model"]["vision"]["patch_size"] == 16
+    for config in (grounded, finer):
+        config.pop("variant"), config["model"]["vision"].pop("image_size")
+    assert finer == grounded
+    demo = config_module("configs/demo.py")
+    assert demo.get_config().train_config == "configs/kosmos_e.py:demo_grounded224"
+    assert demo.get_config().steps == demo.get_config("tiny").steps == 0  # 0: the training config's own

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import shapely
 
-from kosmos_jax.experiments.spec import (GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START, SHIPPED_START,
-                                        load_config)
+from kosmos_jax.experiments.spec import (DEMO_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START,
+                                        SHIPPED_START, load_config)
 from kosmos_jax.models import weights
 from kosmos_jax.predict.predictor import GraspPredictor
 from kosmos_jax.sources import cornell
@@ -21,9 +21,10 @@ from kosmos_jax.workdir.model import model_config
 from user_commands import REPO, run_module
 
 # make demo's start in the fast suite; the earlier starts, whose folders no longer change, in the slow one:
-# 35-40 s for the predict command and 14-22 s for the photos each (make test's --durations, 2026-12-02, 2 cores)
-STARTS = (GROUNDING_START, *(pytest.param(start, marks=pytest.mark.slow)
-                             for start in (SHIPPED_START, GROUNDING6000_START, GROUNDING10000_START)))
+# 35-40 s for the predict command and 14-22 s for the photos each (make test's --durations, 2026-12-02, 2 cores;
+# 13 s and 7-10 s on 2026-12-06's faster cores, `pytest --durations` alone)
+STARTS = (DEMO_START, *(pytest.param(start, marks=pytest.mark.slow)
+                         for start in (SHIPPED_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START)))
 EVERY = 5  # every fifth photo: 21 of the 101
 
 
@@ -34,6 +35,7 @@ def object_hull(files: cornell.CornellFiles) -> shapely.Geometry:
 
 def test_make_demo_trains_the_model_of_the_start_it_fine_tunes():
     demo = load_config("configs/demo.py")
+    assert demo.init_from == DEMO_START
     start = weights.read_config(REPO / demo.init_from)
     check_same_model(start, model_config(load_config(demo.train_config).model, start.text.vocab_size), demo.init_from)
 
@@ -57,7 +59,7 @@ def test_a_shipped_start_answers_most_real_cornell_photos_with_a_centre_on_the_o
     assert sum(on_object) >= 0.75 * len(photos)
 
 
-@pytest.mark.slow  # 36 s for make demo's start; the bad-input checks below run the command on it in the fast suite (make test's --durations, 2026-12-02, 2 cores)
+@pytest.mark.slow  # 36 s for make demo's start (13 s on 2026-12-06's cores); the bad-input checks below run the command on it in the fast suite (make test's --durations, 2026-12-02, 2 cores)
 def test_the_predict_command_reads_a_shipped_start_alone_and_answers_as_the_library_does(cornell_root, shipped):
     start, predictor = shipped
     photo = cornell.find_photos(cornell_root)[0].rgb
@@ -77,7 +79,7 @@ def test_the_predict_command_answers_bad_input_to_a_shipped_start_with_one_line(
     (tmp_path / "notes.png").write_text("not a picture")
     path = cornell.find_photos(cornell_root)[0].rgb if image == "photo" else tmp_path / image
     asked = [] if instruction is None else [f"--instruction={instruction}"]
-    done = run_module("kosmos_jax.predict", f"--pretrained={GROUNDING_START}", f"--image={path}", *asked)
+    done = run_module("kosmos_jax.predict", f"--pretrained={DEMO_START}", f"--image={path}", *asked)
     errors = [line for line in done.stderr.splitlines() if line.startswith("error: ")]
     assert done.returncode == 1 and len(errors) == 1 and said in errors[0], done.stderr[-2000:]
     assert "Traceback" not in done.stderr

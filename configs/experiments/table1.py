@@ -25,7 +25,8 @@ cpu_converged: the baselines with the schedules they ship (configs/baselines.py:
 checked on a second fold, results/baselines_validation; about 30 to 37 minutes a fold on 2 quiet cores)
 under honest and paper, and GR-ConvNet and GG-CNN2's own protocol, public (one split: fold 0 of each scheme,
 photos shuffled image-wise, in file order object-wise); KOSMOS-E as configs/kosmos_e.py:demo_grounded
-fine-tunes the committed grounding start (400 steps; make demo itself now runs 800), under honest only (its
+fine-tunes the committed grounding start (400 steps at 112 px; make demo ran 800 from 2026-12-04 and fine-tunes a
+16 x 16 start at 224 px since 2026-12-06), under honest only (its
 photo-centre crops would replace the paper protocol's label-centred ones), on Cornell's NON instructions with
 4 views a photo: data_size.py:cornell_grounded's 4-view arm. Folds 0 and 1 of both schemes (results/table1_converged).
 paper: configs/kosmos_e.py:paper (KOSMOS-2 initialisation: --config.init_from) and the baselines

@@ -45,10 +45,14 @@ KOSMOS_TOKENIZER = "sentencepiece.bpe.model"  # the tokenizer file of a KOSMOS-2
 # the committed pretrained start that the pretrained arms (and make demo until 2026-11-30) fine-tune (results/pretrain/README.md),
 # relative to the repository root, where the demo and the runner are started
 SHIPPED_START = "results/pretrain/demo_photos1200"
-# the committed grounding start that make demo fine-tunes (configs/kosmos_e.py:demo_grounded): pretrained on
-# scenes made on the fly for 6,000 steps, then 4,000 more twice, its connector reads the instruction
-# (results/pretrain/README.md)
+# the committed grounding start that the experiments' grounded arms fine-tune (configs/kosmos_e.py:demo_grounded),
+# and make demo until 2026-12-06: pretrained on scenes made on the fly for 6,000 steps, then 4,000 more twice, its
+# connector reads the instruction (results/pretrain/README.md)
 GROUNDING_START = "results/pretrain/grounding14000"
+# that start continued for 2,400 steps on a 16 x 16 grid of patches (224 px views, its position embeddings
+# resampled at the first step): make demo's start since 2026-12-06 (configs/kosmos_e.py:demo_grounded224,
+# results/finer_grid/README.md)
+DEMO_START = "results/pretrain/grounding16400"
 # the same start 4,000 steps earlier: make demo's start on 2026-12-01 (results/demo/grounded10000)
 GROUNDING10000_START = "results/pretrain/grounding10000"
 # the same run at its 6,000th step: make demo's start from 2026-11-30 to 2026-12-01, Table II's cpu_grounded arms
