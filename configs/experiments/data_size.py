@@ -27,8 +27,9 @@ cpu_scratch: cpu_pretrained's arms, data, steps and folds with no start: configs
 (the from-scratch recipe at its own peak learning rate, 1e-3), the rows beside the pretrained ones.
 cornell_grounded: the paper's own Fig. 6 setting, the Cornell photos with more and more augmented views (2, 4,
 8 and 16 a photo), each arm the 400-step fine-tune of make demo's 8 x 8 recipe until 2026-12-06
-(configs/kosmos_e.py:demo_grounded: steps of 32 at peak rate 3e-4) from the committed grounding start (pretrained on synthetic scenes only, never a Cornell
-photo), instruction kind NON, honest protocol, image- and object-wise folds 0 and 1.
+(configs/kosmos_e.py:demo_grounded: steps of 32 at peak rate 3e-4) from the committed grounding start
+(pretrained on synthetic scenes only, never a Cornell photo), instruction kind NON, honest protocol, image- and
+object-wise folds 0 and 1.
 cornell_grounded_epochs: cornell_grounded with the schedule in proportion to the views (100 steps and 25
 warm-up steps a view of each photo: 200 steps for 2 views, 1,600 for 16), so every arm makes the same number
 of passes over its training views; the 4-view arm is cornell_grounded's own (its fold records serve both:
