@@ -14,6 +14,8 @@
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_grounded \
         --config.init_from=results/pretrain/grounding14000 --config.steps=800 --config.out=demo_g14000
                                                                    # make demo from 2026-12-04 to 2026-12-06
+    python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding16400 \
+        --config.out=demo_g16400                                   # make demo on 2026-12-06
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 

@@ -63,12 +63,13 @@ def test_demo_grounded_is_the_fine_tune_with_the_instruction_reading_connector_o
     assert grounded == tune
 
 
-def test_demo_grounded224_is_demo_grounded_on_a_16_by_16_grid_and_make_demo_trains_it_for_its_own_steps(kosmos_e):
+def test_demo_grounded224_is_demo_grounded_on_a_16_by_16_grid_at_half_its_rate_and_make_demo_trains_it_for_its_own_steps(kosmos_e):
     grounded, finer = kosmos_e.get_config("demo_grounded").to_dict(), kosmos_e.get_config("demo_grounded224").to_dict()
     assert (grounded["model"]["vision"]["image_size"], finer["model"]["vision"]["image_size"]) == (112, 224)
     assert finer["model"]["vision"]["image_size"] // finer["model"]["vision"]["patch_size"] == 16
+    assert finer["optimizer"]["peak_lr"] == grounded["optimizer"]["peak_lr"] / 2 == 1.5e-4
     for config in (grounded, finer):
-        config.pop("variant"), config["model"]["vision"].pop("image_size")
+        config.pop("variant"), config["model"]["vision"].pop("image_size"), config["optimizer"].pop("peak_lr")
     assert finer == grounded
     # make demo takes the training config's own steps (which config it trains, against its start's model:
     # tests/test_shipped_starts.py)

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import shapely
 
-from kosmos_jax.experiments.spec import (DEMO_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START,
-                                        SHIPPED_START, load_config)
+from kosmos_jax.experiments.spec import (DEMO_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING16400_START,
+                                        GROUNDING_START, SHIPPED_START, load_config)
 from kosmos_jax.models import weights
 from kosmos_jax.predict.predictor import GraspPredictor
 from kosmos_jax.sources import cornell
@@ -24,7 +24,8 @@ from user_commands import REPO, run_module
 # 35-40 s for the predict command and 14-22 s for the photos each (make test's --durations, 2026-12-02, 2 cores;
 # 13 s and 7-10 s on 2026-12-06's faster cores, `pytest --durations` alone)
 STARTS = (DEMO_START, *(pytest.param(start, marks=pytest.mark.slow)
-                         for start in (SHIPPED_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START)))
+                         for start in (SHIPPED_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START,
+                                       GROUNDING16400_START)))
 EVERY = 5  # every fifth photo: 21 of the 101
 
 
