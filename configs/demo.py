@@ -15,7 +15,7 @@
         --config.init_from=results/pretrain/grounding14000 --config.steps=800 --config.out=demo_g14000
                                                                    # make demo from 2026-12-04 to 2026-12-06
     python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding16400 \
-        --config.out=demo_g16400                                   # make demo on 2026-12-06
+        --config.peak_lr=3e-4 --config.out=demo_g16400             # make demo on 2026-12-06
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 
@@ -33,6 +33,7 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     # at 224 px they take make demo past its 15 minutes; results/finer_grid/README.md)
     config.steps = 0
     config.train_seed = -1  # -1: the training config's own train.seed; another seed wants its own config.out
+    config.peak_lr = 0.0  # 0: the training config's own optimizer.peak_lr; another rate wants its own config.out
     # a run's workdir or an exported folder to start from (relative to the repository root), given to the
     # training config as its config.init_from; "": from scratch. The default is the committed grounding start,
     # pretrained on scenes made on the fly from seeds no demo test or validation set uses (results/pretrain/README.md,

@@ -91,6 +91,10 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
         train_config.train.steps = config.steps
     if config.train_seed >= 0:
         train_config.train.seed = config.train_seed
+    if config.peak_lr < 0:
+        raise ValueError(f"config.peak_lr={config.peak_lr}: a learning rate must be positive (0: the training config's own)")
+    if config.peak_lr:
+        train_config.optimizer.peak_lr = config.peak_lr
     if config.init_from:
         start = REPO / config.init_from  # an absolute path stays itself
         if not start.is_dir():

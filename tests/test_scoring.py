@@ -295,3 +295,23 @@ def test_demo_trains_with_its_train_seed_or_the_training_config_s_own(tmp_path, 
     with pytest.raises(SystemExit, match="training stopped at step 0"):
         demo.trained_rows(demo_config(tmp_path, train_seed=train_seed), tmp_path)
     assert trained == [expected]  # configs/kosmos_e.py:tiny's own seed is 0
+
+
+@pytest.mark.parametrize("peak_lr,expected", [(0.0, 3e-3), (1.5e-4, 1.5e-4)])
+def test_demo_trains_at_its_peak_lr_or_the_training_config_s_own(tmp_path, monkeypatch, peak_lr, expected):
+    trained = []
+
+    def stopped_train(train_config, workdir):
+        trained.append(train_config.optimizer.peak_lr)
+        return {"finished": False, "step": 0}
+
+    monkeypatch.setattr(demo.runner, "default_train", stopped_train)
+    with pytest.raises(SystemExit, match="training stopped at step 0"):
+        demo.trained_rows(demo_config(tmp_path, peak_lr=peak_lr), tmp_path)
+    assert trained == [expected]  # configs/kosmos_e.py:tiny's own rate is 3e-3
+
+
+def test_demo_refuses_a_negative_peak_lr_before_training(tmp_path):
+    with pytest.raises(ValueError, match=r"config.peak_lr=-0.001: a learning rate must be positive"):
+        demo.trained_rows(demo_config(tmp_path, peak_lr=-1e-3), tmp_path)
+    assert not list(tmp_path.iterdir())
