@@ -243,8 +243,8 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
         config = get_config("demo_grounded")
         config.variant = variant
         # the 8 x 8 grid's cells are 28 px of the view, a mosaic photo's quadrant four of them: on a 16 x 16 grid
-        # (from grounding16400, at 3e-4) the validation mosaics read 33.33 against 21.25 for make demo's 800 steps at 112 px, single photos 60.40
-        # against 59.50 (two seeds; results/finer_grid/README.md)
+        # (from grounding16400, at 3e-4) the validation mosaics read 33.33 against 21.25 for make demo's 800 steps
+        # at 112 px, single photos 60.40 against 59.50 (two seeds; results/finer_grid/README.md)
         config.model.vision.image_size = 224
         # half demo_grounded's peak rate: from grounding21200, 61.90 on validation single photos against 58.79 at
         # 3e-4 and 39.53 on mosaics against 39.38 (two seeds; results/finer_grid/README.md, 2026-12-07)

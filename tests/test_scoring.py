@@ -283,32 +283,20 @@ def test_demo_refuses_fresh_photos_of_the_training_seed(tmp_path):
     assert not list(tmp_path.iterdir())  # refused before writing anything
 
 
-@pytest.mark.parametrize("train_seed,expected", [(-1, 0), (3, 3)])
-def test_demo_trains_with_its_train_seed_or_the_training_config_s_own(tmp_path, monkeypatch, train_seed, expected):
+# configs/kosmos_e.py:tiny's own seed is 0 and its own peak rate 3e-3
+@pytest.mark.parametrize("override,expected", [(dict(train_seed=-1), (0, 3e-3)), (dict(train_seed=3), (3, 3e-3)),
+                                               (dict(peak_lr=0.0), (0, 3e-3)), (dict(peak_lr=1.5e-4), (0, 1.5e-4))])
+def test_demo_trains_with_its_seed_and_rate_or_the_training_config_s_own(tmp_path, monkeypatch, override, expected):
     trained = []
 
     def stopped_train(train_config, workdir):
-        trained.append(train_config.train.seed)
+        trained.append((train_config.train.seed, train_config.optimizer.peak_lr))
         return {"finished": False, "step": 0}
 
     monkeypatch.setattr(demo.runner, "default_train", stopped_train)
     with pytest.raises(SystemExit, match="training stopped at step 0"):
-        demo.trained_rows(demo_config(tmp_path, train_seed=train_seed), tmp_path)
-    assert trained == [expected]  # configs/kosmos_e.py:tiny's own seed is 0
-
-
-@pytest.mark.parametrize("peak_lr,expected", [(0.0, 3e-3), (1.5e-4, 1.5e-4)])
-def test_demo_trains_at_its_peak_lr_or_the_training_config_s_own(tmp_path, monkeypatch, peak_lr, expected):
-    trained = []
-
-    def stopped_train(train_config, workdir):
-        trained.append(train_config.optimizer.peak_lr)
-        return {"finished": False, "step": 0}
-
-    monkeypatch.setattr(demo.runner, "default_train", stopped_train)
-    with pytest.raises(SystemExit, match="training stopped at step 0"):
-        demo.trained_rows(demo_config(tmp_path, peak_lr=peak_lr), tmp_path)
-    assert trained == [expected]  # configs/kosmos_e.py:tiny's own rate is 3e-3
+        demo.trained_rows(demo_config(tmp_path, **override), tmp_path)
+    assert trained == [expected]
 
 
 def test_demo_refuses_a_negative_peak_lr_before_training(tmp_path):
