@@ -42,6 +42,7 @@ from kosmos_jax.metrics import BACKENDS
 from kosmos_jax.scoring import fold_scores
 from kosmos_jax.scoring.no_learning import PREDICTORS
 from kosmos_jax.scoring.cornell_examples import cornell_examples
+from kosmos_jax.train.optimizer import check_rates
 from kosmos_jax.workdir.files import RunMismatchError
 from kosmos_jax.workdir.run import open_run
 
@@ -91,10 +92,9 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
         train_config.train.steps = config.steps
     if config.train_seed >= 0:
         train_config.train.seed = config.train_seed
-    if config.peak_lr < 0:
-        raise ValueError(f"config.peak_lr={config.peak_lr}: a learning rate must be positive (0: the training config's own)")
-    if config.peak_lr:
+    if config.peak_lr:  # 0: the training config's own
         train_config.optimizer.peak_lr = config.peak_lr
+    check_rates(train_config.optimizer)  # before anything is written
     if config.init_from:
         start = REPO / config.init_from  # an absolute path stays itself
         if not start.is_dir():

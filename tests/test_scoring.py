@@ -300,6 +300,6 @@ def test_demo_trains_with_its_seed_and_rate_or_the_training_config_s_own(tmp_pat
 
 
 def test_demo_refuses_a_negative_peak_lr_before_training(tmp_path):
-    with pytest.raises(ValueError, match=r"config.peak_lr=-0.001: a learning rate must be positive"):
+    with pytest.raises(ValueError, match=r"optimizer.peak_lr=-0.001: a learning rate must be a positive number"):
         demo.trained_rows(demo_config(tmp_path, peak_lr=-1e-3), tmp_path)
     assert not list(tmp_path.iterdir())

@@ -6,6 +6,7 @@ import dataclasses
 import functools
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -100,6 +101,19 @@ def test_schedule_warms_up_then_decays_linearly_to_end_lr():
                                rtol=1e-6, atol=1e-12)
     _, by_total = optimizer.make_optimizer(_opt_config(peak_lr=1.0, warmup_steps=2), total_steps=12)
     assert float(by_total(7)) == pytest.approx(0.5) and float(by_total(12)) == 0.0
+
+
+
+@pytest.mark.parametrize("rates,message", [
+    (dict(peak_lr=0.0), "optimizer.peak_lr=0.0: a learning rate must be a positive number"),
+    (dict(peak_lr=-1e-3), "optimizer.peak_lr=-0.001: a learning rate must be a positive number"),
+    (dict(peak_lr=float("nan")), "optimizer.peak_lr=nan: a learning rate must be a positive number"),
+    (dict(peak_lr=1e-3, end_lr=-1e-4), "optimizer.end_lr=-0.0001: must lie between 0 and optimizer.peak_lr=0.001"),
+    (dict(peak_lr=1e-3, end_lr=2e-3), "optimizer.end_lr=0.002: must lie between 0 and optimizer.peak_lr=0.001"),
+])
+def test_make_optimizer_refuses_rates_no_run_means(rates, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        optimizer.make_optimizer(_opt_config(**rates), total_steps=10)
 
 
 def test_decay_mask_spares_norms_biases_and_embeddings():

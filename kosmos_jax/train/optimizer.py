@@ -15,6 +15,7 @@ The optimiser config (`config.optimizer`, an ml_collections.ConfigDict):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import jax
@@ -64,10 +65,21 @@ def decay_mask(params: nnx.State, rule: str = "logical") -> nnx.State:
     return jax.tree_util.tree_map_with_path(decays, params, is_leaf=lambda x: isinstance(x, nnx.Variable))
 
 
+def check_rates(opt_config) -> None:
+    """Refuse rates no run means: peak_lr must be above 0 (a zero or negative rate trains nothing, or ascends
+    the loss, without a word), end_lr between 0 and peak_lr (both finite)."""
+    peak, end = float(opt_config.peak_lr), float(opt_config.end_lr)
+    if not math.isfinite(peak) or peak <= 0:
+        raise ValueError(f"optimizer.peak_lr={opt_config.peak_lr}: a learning rate must be a positive number")
+    if not math.isfinite(end) or not 0 <= end <= peak:
+        raise ValueError(f"optimizer.end_lr={opt_config.end_lr}: must lie between 0 and optimizer.peak_lr={peak}")
+
+
 def make_optimizer(opt_config, total_steps: int) -> tuple[optax.GradientTransformation, optax.Schedule]:
     """(gradient transformation, learning-rate schedule of the update count) from the optimiser config."""
     if opt_config.name != "adamw":
         raise ValueError(f"unknown optimizer {opt_config.name!r}; only 'adamw' is implemented")
+    check_rates(opt_config)
     decay_steps = opt_config.decay_steps or total_steps
     schedule = warmup_linear_decay(opt_config.peak_lr, opt_config.end_lr, opt_config.warmup_steps, decay_steps)
     rule = opt_config.get("decay_mask", "logical")
