@@ -176,6 +176,13 @@ def test_a_non_finite_step_stops_the_run_naming_the_step_and_its_examples(datase
     assert Checkpoints(tmp_path).all_steps() == [1]  # the last good one, nothing after it
 
 
+
+def test_a_zero_peak_rate_is_refused_before_the_workdir_is_made(dataset_dir, tmp_path):
+    workdir = tmp_path / "run"
+    done = train(workdir, dataset_dir, "--config.optimizer.peak_lr=0", expect=1)
+    assert "optimizer.peak_lr=0.0: a learning rate must be a positive number" in done.stderr
+    assert not workdir.exists()
+
 def test_resuming_with_another_model_is_refused(reference, dataset_dir):
     done = train(reference, dataset_dir, f"--config.train.steps={STEPS + 5}", "--config.model.text.layers=3", expect=1)
     assert "another model" in done.stderr

@@ -328,6 +328,7 @@ def train(config, workdir) -> dict:
     workdir = pathlib.Path(workdir)
     primary = jax.process_index() == 0
     steps = config.train.steps
+    tx, schedule = make_optimizer(config.optimizer, steps)  # refuses a bad optimiser config before the workdir is made
     checkpoints = Checkpoints(workdir, keep=config.train.keep_checkpoints)
     latest = checkpoints.latest_step()
     if latest is not None and latest >= steps:
@@ -340,7 +341,6 @@ def train(config, workdir) -> dict:
         return {"finished": True, "step": latest, "resumed_from": latest}
 
     mesh = make_mesh(config.mesh.data, config.mesh.fsdp, config.mesh.tensor)
-    tx, schedule = make_optimizer(config.optimizer, steps)
     task = make_task(config, mesh, tx, schedule)
     batches = task.batches
     if latest is None:
