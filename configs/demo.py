@@ -16,6 +16,8 @@
                                                                    # make demo from 2026-12-04 to 2026-12-06
     python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding16400 \
         --config.peak_lr=3e-4 --config.out=demo_g16400             # make demo on 2026-12-06
+    python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_grounded224 \
+        --config.out=demo_g21200_random                            # make demo on 2026-12-07
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 
@@ -28,8 +30,8 @@ def get_config(arg: str | None = None) -> ml_collections.ConfigDict:
     tiny = arg == "tiny"
     config = ml_collections.ConfigDict()
     config.out = "demo_out"  # relative to the repository root; the run is OUT/run, its data OUT/datasets
-    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_grounded224"  # "": no training
-    # 0: the training config's own train.steps (demo_grounded224's 400: its 800 read more on validation mosaics, but
+    config.train_config = "configs/kosmos_e.py:tiny" if tiny else "configs/kosmos_e.py:demo_grounded224_consensus"  # "": no training
+    # 0: the training config's own train.steps (demo_grounded224_consensus's 400: its 800 read more on validation mosaics, but
     # at 224 px they take make demo past its 15 minutes; results/finer_grid/README.md)
     config.steps = 0
     config.train_seed = -1  # -1: the training config's own train.seed; another seed wants its own config.out

@@ -2,7 +2,7 @@
 
     python -m kosmos_jax.demo --config=configs/demo.py [--config.steps=N] [--config.cornell=PATH]
 
-1. Trains `config.train_config` (configs/kosmos_e.py:demo_grounded224: the demo's small model fine-tuned on
+1. Trains `config.train_config` (configs/kosmos_e.py:demo_grounded224_consensus: the demo's small model fine-tuned on
    the project's synthetic scenes, NON and mosaics, at 224 px from the committed grounding start, config.init_from) in
    OUT/run, an ordinary workdir (`python -m kosmos_jax.evaluate --workdir=OUT/run` and the
    notebooks open it); a finished run of the same config is reused (one of another is refused), a

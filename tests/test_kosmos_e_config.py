@@ -1,5 +1,5 @@
-"""configs/kosmos_e.py: every variant loads; demo_photos, demo_photos_finetune, demo_grounded, demo_grounded224 and
-demo_gpu change only what they say."""
+"""configs/kosmos_e.py: every variant loads; demo_photos, demo_photos_finetune, demo_grounded, demo_grounded224,
+demo_grounded224_consensus and demo_gpu change only what they say."""
 
 import pytest
 
@@ -75,3 +75,12 @@ def test_demo_grounded224_is_demo_grounded_on_a_16_by_16_grid_at_half_its_rate_a
     # tests/test_shipped_starts.py)
     demo = config_module("configs/demo.py")
     assert demo.get_config().steps == demo.get_config("tiny").steps == 0
+
+
+def test_demo_grounded224_consensus_changes_only_the_target_grasp_and_is_what_make_demo_trains(kosmos_e):
+    finer, consensus = kosmos_e.get_config("demo_grounded224").to_dict(), kosmos_e.get_config("demo_grounded224_consensus").to_dict()
+    assert (finer["data"]["build"]["target_grasp"], consensus["data"]["build"]["target_grasp"]) == ("random", "consensus")
+    for config in (finer, consensus):
+        config.pop("variant"), config["data"]["build"].pop("target_grasp")
+    assert consensus == finer
+    assert config_module("configs/demo.py").get_config().train_config == "configs/kosmos_e.py:demo_grounded224_consensus"

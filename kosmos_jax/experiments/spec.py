@@ -51,7 +51,7 @@ SHIPPED_START = "results/pretrain/demo_photos1200"
 GROUNDING_START = "results/pretrain/grounding14000"
 # that start continued for 7,200 steps on a 16 x 16 grid of patches (224 px views, its position embeddings
 # resampled at the first step), in four runs each from the last one's export: make demo's start since 2026-12-07
-# (configs/kosmos_e.py:demo_grounded224, results/finer_grid/README.md)
+# (configs/kosmos_e.py:demo_grounded224_consensus, results/finer_grid/README.md)
 DEMO_START = "results/pretrain/grounding21200"
 # the first 2,400 of those steps: make demo's start on 2026-12-06
 GROUNDING16400_START = "results/pretrain/grounding16400"
