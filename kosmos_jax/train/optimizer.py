@@ -2,8 +2,8 @@
 
 The optimiser config (`config.optimizer`, an ml_collections.ConfigDict):
   name          "adamw"
-  peak_lr       learning rate reached at the end of warm-up
-  end_lr        learning rate at `decay_steps` and after (0 in the paper)
+  peak_lr       learning rate reached at the end of warm-up (above 0: `check_rates`)
+  end_lr        learning rate at `decay_steps` and after (0 in the paper; 0 to peak_lr)
   warmup_steps  linear warm-up from 0 over this many updates
   decay_steps   update at which the linear decay reaches end_lr; None or 0: the run's total steps
   b1, b2, eps   Adam's moments and denominator (eps outside the square root, as PyTorch)
