@@ -10,7 +10,9 @@
    With config.init_from (a run's workdir or an exported folder) it fine-tunes from that start.
    It decodes the held-out fold's answers once, with the grammar (evaluate's code; `python -m
    kosmos_jax.evaluate --workdir=OUT/run` adds the decoding without it), and scores the
-   image-centre and ground-truth-mean predictors on exactly the same test instructions. Then the
+   image-centre and ground-truth-mean predictors on exactly the same test instructions; it answers each
+   mosaic instruction a second time on the quadrant its first answer chose, enlarged 2x, and reports
+   that beside the one-pass answers as predictor kosmos_e+zoom (scoring/zoom.py). Then the
    same on config.fresh_photos scenes drawn with another seed (config.fresh_seed), which it never
    trained on: NON on each photo, and the multi-object kinds on four-photo mosaics of them
    (config.fresh_kinds; the evaluate command's --cornell scoring, in OUT/run/eval/STEP/cornell-*).
@@ -19,7 +21,7 @@
    `honest` and `paper` protocols and the `exact` and `reference` IoU backends; the same on the real
    Cornell files when present (../shared/data/cornell, or config.cornell).
 Prints both tables and writes OUT/results.json: one row per (data, protocol, split, backend,
-scene, predictor), `predictor` = kosmos_e for the trained model. The footnotes say how many views
+scene, predictor), `predictor` = kosmos_e for the trained model (kosmos_e+zoom with the mosaic zoom). The footnotes say how many views
 had no ground truth left to score against (skipped) and how many folds had no scored view.
 """
 
@@ -50,6 +52,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_CORNELL = REPO.parent / "shared" / "data" / "cornell"
 GOAL_POINTS = 50  # issue 21's: the held-out fold's single-object instructions, above the image centre
 FRESH_SPLIT = "fresh photos"  # the `split` of the rows scored on config.fresh_photos
+ZOOMED = "kosmos_e+zoom"  # the demo model with the mosaic zoom (scoring.zoom), a predictor of its tables
 
 
 def synthetic_source(out: pathlib.Path, photos: int, seed: int) -> pathlib.Path:
@@ -111,7 +114,7 @@ def trained_rows(config, out: pathlib.Path) -> list[dict]:
         raise SystemExit(f"error: {error} (for the demo: remove {out}, or give --config.out=ANOTHER_FOLDER)") from None
     if not summary["finished"]:
         raise SystemExit(f"training stopped at step {summary['step']}: run `make demo` again to resume")
-    results = runner.evaluate_run(workdir, summary["step"], unconstrained=False)
+    results = runner.evaluate_run(workdir, summary["step"], unconstrained=False, mosaic_zoom=True)
     no_learning = runner.no_learning_scores(workdir)["scores"]
     build = train_config.data.build
     data = f"{train_config.data.source}-{train_config.data.synthetic_photos}" \
@@ -141,12 +144,20 @@ def check_schedule(workdir: pathlib.Path, train_config, out: pathlib.Path) -> No
 def scored_rows(fields: dict, figures_of: list[tuple[str, dict]]) -> list[dict]:
     """One row per (predictor, scene), "all" first, each with `fields`; a decoded model's rows also
     with `angle_at_centre` (percent of its angles within 30 degrees of the ground truth nearest its
-    answered centre)."""
-    return [dict(fields, backend="exact", scene=scene, predictor=predictor, mean=round(figure["accuracy"], 2),
-                 instructions=figure["instructions"],
-                 **({"angle_at_centre": figure["angle_at_centre"]["within_30_deg"]} if "angle_at_centre" in figure else {}))
-            for predictor, figures in figures_of
-            for scene, figure in [("all", figures)] + sorted(figures["by_scene"].items())]
+    answered centre), and its mosaic zoom's (results' "mosaic_zoom", scoring.zoom) as predictor
+    ZOOMED, for the scenes with mosaics."""
+    rows = []
+    for predictor, figures in figures_of:
+        for scene, figure in [("all", figures)] + sorted(figures["by_scene"].items()):
+            fit = {"angle_at_centre": figure["angle_at_centre"]["within_30_deg"]} if "angle_at_centre" in figure else {}
+            rows.append(dict(fields, backend="exact", scene=scene, predictor=predictor,
+                             mean=round(figure["accuracy"], 2), instructions=figure["instructions"], **fit))
+        zoomed = figures.get("mosaic_zoom")
+        if zoomed and "multi" in zoomed["by_scene"]:
+            rows += [dict(fields, backend="exact", scene=scene, predictor=ZOOMED, mean=round(figure["accuracy"], 2),
+                          instructions=figure["instructions"])
+                     for scene, figure in [("all", zoomed), ("multi", zoomed["by_scene"]["multi"])]]
+    return rows
 
 
 def fresh_rows(config, train_config, out: pathlib.Path, workdir: pathlib.Path, step: int) -> list[dict]:
@@ -173,9 +184,11 @@ def fresh_results(workdir: pathlib.Path, step: int, folder: pathlib.Path, kinds:
     written = workdir / "eval" / str(step) / f"cornell-{folder.resolve().name}" / "results.json"
     if written.is_file():
         results = json.loads(written.read_text())
-        if results.get("kinds") == kinds and results.get("cornell") == str(folder.resolve()):
+        if results.get("kinds") == kinds and results.get("cornell") == str(folder.resolve()) \
+                and "mosaic_zoom" in results:
             return results
-    results, answers, where = evaluate(workdir, step=step, cornell=folder, kinds=kinds, unconstrained=False)
+    results, answers, where = evaluate(workdir, step=step, cornell=folder, kinds=kinds, unconstrained=False,
+                                       mosaic_zoom=True)
     write(results, answers, where)
     return results
 
@@ -199,7 +212,7 @@ def print_trained(rows: list[dict]) -> None:
 
 def print_scenes(rows: list[dict], what: str) -> None:
     """One table: a row per predictor, a column per scene."""
-    predictors = sorted({r["predictor"] for r in rows}, key=lambda p: (p != "kosmos_e", p))
+    predictors = sorted({r["predictor"] for r in rows}, key=lambda p: (p not in ("kosmos_e", ZOOMED), p))
     scenes = sorted({r["scene"] for r in rows}, key=lambda s: (s != "all", s))
     first = rows[0]
     print(f"\n{first['data']}, {first['protocol']} protocol, {first['split']} {what}, step {first['step']} "
@@ -212,6 +225,9 @@ def print_scenes(rows: list[dict], what: str) -> None:
     if fits:
         print(f"{'(angle fit)':<15}" + "".join(f"{fits.get(s, '-'):>18}" for s in scenes))
         print("angle fit: kosmos_e's angles within 30 degrees of the ground truth nearest its answered centre, in percent")
+    if any(r["predictor"] == ZOOMED for r in rows):
+        print(f"{ZOOMED}: kosmos_e with each mosaic instruction answered again, as NON, on the quadrant its first "
+              "answer chose, enlarged 2x (scoring/zoom.py); single photos as kosmos_e answered them")
 
 
 def print_table(rows: list[dict]) -> None:

@@ -21,7 +21,11 @@ from kosmos_jax.models.kosmos2 import abstract_model, split_model
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_embeddings import angle_token_ids
 from kosmos_jax.scoring.instructions import combine, group_instructions
+from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
+from kosmos_jax.scoring.prompts import prompt, written_prompt
+from kosmos_jax.scoring.zoom import from_zoomed, quadrant_corners, zoomed_view
+from kosmos_jax.text.formatter import prompt_cues
 from kosmos_jax.scoring.tally import angle_errors, angle_fit, distinct, markdown, successes
 from kosmos_jax.text.formatter import parse_target
 from kosmos_jax.train.metrics_log import read_metrics
@@ -509,3 +513,73 @@ def test_an_exported_folder_is_refused_what_only_a_run_has_in_one_line(workdir, 
         assert len(err.strip().splitlines()) == 1 and err.startswith("error: ")
     assert sorted(p.name for p in exported.iterdir()) == ["config.json", "kosmos_e.json", "model.safetensors",
                                                          "tokenizer.model"]
+
+
+def test_a_prompt_written_from_text_is_the_prompt_the_build_stored(workdir, tmp_path):
+    """What the zoom asks (NON, no instruction) and the predict command asks (any instruction) are laid
+    out as the build laid out the stored examples of those instructions."""
+    run = open_run(workdir)
+    folder = tmp_path / "photos"
+    scenes.write_dataset(folder, photos=4, seed=11)
+    records = cornell_examples(folder, run.tokenizer, run.format_config, ("non", "multi")).records
+    cues = dict(prompt_cues(run.format_config, "grasp"))
+    checked = set()
+    for record in records:
+        cue, instruction = cues[record["part"]], record["instruction"]
+        ids, image_mask = written_prompt(run.tokenizer, instruction, cue)
+        stored_ids, stored_mask = prompt(record, run.tokenizer, cue)
+        np.testing.assert_array_equal(ids, stored_ids)
+        np.testing.assert_array_equal(image_mask, stored_mask)
+        checked.add((record["kind"], bool(instruction)))
+    assert ("non", False) in checked and any(has_text for _, has_text in checked)
+
+
+def test_a_mosaic_s_zoomed_answer_is_the_answer_to_a_non_example_showing_its_quadrant(workdir, tmp_path):
+    """zoomed_grasps against the one-pass evaluation: NON examples whose image is each mosaic's chosen
+    quadrant enlarged, answered and combined as any example is, then mapped back (one row a batch:
+    the same computation, to the bit)."""
+    run = open_run(workdir)
+    folder = tmp_path / "photos"
+    scenes.write_dataset(folder, photos=4, seed=11)
+    records = cornell_examples(folder, run.tokenizer, run.format_config, ("non", "multi")).records
+    mesh = make_mesh(1, -1, 1)
+    _, params = run.params(None, mesh)
+    evaluate_records = lambda examples: GraspEvaluation(run.model_config, mesh, examples, run.tokenizer,
+                                                        run.format_config, "honest", batch_size=1)
+    evaluation = evaluate_records(records)
+    first = evaluation.grasps(evaluation.answers(params))
+    zoomed, texts = evaluation.zoomed_grasps(params, first)
+    mosaics = [g for g, instruction in enumerate(evaluation.instructions) if instruction.scene == "multi"]
+    assert mosaics and set(texts) == set(mosaics)
+    assert np.isnan(np.delete(zoomed, mosaics, axis=0)).all()  # single photos are not zoomed
+    non = next(instruction for instruction in evaluation.instructions if instruction.kind == "non")
+    corners = quadrant_corners(first[mosaics, :2], records[0]["image"].shape[0])
+    shown = [{**records[index], "image": zoomed_view(records[min(evaluation.instructions[g].examples.values())]["image"],
+                                                     corner)}
+             for g, corner in zip(mosaics, corners) for index in non.examples.values()]
+    again = evaluate_records(shown)
+    assert len(again.instructions) == len(mosaics)
+    np.testing.assert_array_equal(from_zoomed(again.grasps(again.answers(params)), corners), zoomed[mosaics])
+
+
+@pytest.mark.slow  # 25 s (2 cores shared with a training run, 2026-12-07)
+def test_the_mosaic_zoom_scores_each_mosaic_again_and_keeps_the_single_photos(workdir, tmp_path):
+    folder = tmp_path / "photos"
+    scenes.write_dataset(folder, photos=4, seed=11)
+    done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", f"--cornell={folder}", "--kinds=non,multi",
+                      "--nounconstrained", "--mosaic_zoom", "--json")
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = json.loads(done.stdout)
+    zoomed, one_pass = results["mosaic_zoom"], results["by_scene"]
+    assert zoomed["by_scene"]["single"] == {key: one_pass["single"][key] for key in ("accuracy", "instructions", "examples")}
+    assert zoomed["instructions"] == results["instructions"]
+    right = lambda figures: round(figures["accuracy"] * figures["instructions"] / 100)
+    assert right(zoomed["by_scene"]["multi"]) - right(one_pass["multi"]) == \
+        zoomed["mosaics_right_only_zoomed"] - zoomed["mosaics_right_only_first"]
+    rows = [json.loads(line) for line in (workdir / "eval" / "2" / "cornell-photos" / "answers.jsonl").read_text().splitlines()]
+    assert all(("zoom_answer" in row) == (row["scene"] == "multi") for row in rows)
+    assert all(row["zoom_answer"] for row in rows if row["scene"] == "multi")
+    table = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", f"--cornell={folder}", "--kinds=non,multi",
+                       "--nounconstrained", "--mosaic_zoom")
+    assert "Mosaic zoom (each mosaic instruction answered again on the quadrant its first answer chose)" in table.stdout
+

@@ -199,6 +199,24 @@ def test_the_scene_table_puts_the_model_s_angle_fit_under_its_accuracy(capsys):
     assert "angle fit" not in capsys.readouterr().out
 
 
+def test_the_scene_table_puts_the_mosaic_zoom_beside_the_one_pass_answers(capsys):
+    fields = dict(data="synthetic-40-seed1", protocol="honest", split="fresh", step=8, workdir="run")
+    single, multi = {"accuracy": 50.0, "instructions": 2}, {"accuracy": 25.0, "instructions": 8}
+    model = {"accuracy": 30.0, "instructions": 10, "by_scene": {"multi": multi, "single": single},
+             "mosaic_zoom": {"accuracy": 60.0, "instructions": 10,
+                             "by_scene": {"multi": {"accuracy": 62.5, "instructions": 8}, "single": single}}}
+    centre = {"accuracy": 0.0, "instructions": 10, "by_scene": {"multi": {"accuracy": 0.0, "instructions": 8},
+                                                                "single": {"accuracy": 0.0, "instructions": 2}}}
+    rows = demo.scored_rows(fields, [("kosmos_e", model), ("image_centre", centre)])
+    zoomed = {r["scene"]: r["mean"] for r in rows if r["predictor"] == demo.ZOOMED}
+    assert zoomed == {"all": 60.0, "multi": 62.5}  # single photos are not zoomed: no row of their own
+    demo.print_scenes(rows, "fresh")
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines[3:6]] == ["kosmos_e", demo.ZOOMED, "image_centre"]
+    assert lines[4].split() == [demo.ZOOMED, "60.00", "(10)", "62.50", "(8)", "-"]
+    assert lines[-1].startswith(f"{demo.ZOOMED}: kosmos_e with each mosaic instruction answered again")
+
+
 def test_a_demo_run_of_another_schedule_is_refused_before_it_trains(tmp_path):
     """A demo_out of make demo's earlier 400 steps would be lengthened under another schedule: refused, saying how."""
     config = spec.load_config("configs/kosmos_e.py:tiny")
@@ -228,7 +246,8 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     demo.run(demo_config(tmp_path, steps=6))
     rows = json.loads((tmp_path / "results.json").read_text())
     trained = [r for r in rows if r["split"].endswith("-fold0")]
-    assert {r["predictor"] for r in trained} == {"kosmos_e", "image_centre", "gt_mean_oracle"}
+    assert {r["predictor"] for r in trained} == {"kosmos_e", "image_centre", "gt_mean_oracle"} | \
+        ({demo.ZOOMED} if any(r["scene"] == "multi" for r in trained) else set())
     for scene in {r["scene"] for r in trained}:
         counts = {r["instructions"] for r in trained if r["scene"] == scene}
         assert len(counts) == 1, f"scene {scene}: the predictors were scored on different instructions"
@@ -244,7 +263,7 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     # the same model on another seed's scenes: NON on each photo, the multi-object kinds on mosaics
     fresh = [r for r in rows if r["split"] == demo.FRESH_SPLIT]
     assert {r["scene"] for r in fresh} == {"all", "single", "multi"}
-    assert {r["predictor"] for r in fresh} == {"kosmos_e", "image_centre", "gt_mean_oracle"}
+    assert {r["predictor"] for r in fresh} == {"kosmos_e", demo.ZOOMED, "image_centre", "gt_mean_oracle"}
     for scene in ("single", "multi"):
         assert len({r["instructions"] for r in fresh if r["scene"] == scene}) == 1
     assert all(r["data"] == "synthetic-20-seed1" for r in fresh)
@@ -252,6 +271,9 @@ def test_demo_trains_and_scores_its_model_beside_the_baselines_on_the_same_instr
     assert written["kinds"] == ["non", "multi"] and set(written["by_scene"]) == {"single", "multi"}
     model = {r["scene"]: r["mean"] for r in fresh if r["predictor"] == "kosmos_e"}
     assert model["multi"] == pytest.approx(written["by_scene"]["multi"]["accuracy"], abs=0.01)
+    zoomed = {r["scene"]: r["mean"] for r in fresh if r["predictor"] == demo.ZOOMED}
+    assert zoomed == pytest.approx({scene: written["mosaic_zoom"]["by_scene"]["multi"]["accuracy"] if scene == "multi"
+                                    else written["mosaic_zoom"]["accuracy"] for scene in ("all", "multi")}, abs=0.01)
     assert "scene multi" in out and "never trained on" in out
     # the model's rows, and only its, carry its angle fit, as the evaluate command wrote it
     assert {r["predictor"] for r in rows if "angle_at_centre" in r} == {"kosmos_e"}

@@ -1,7 +1,7 @@
 """Score a trained run's grasps from its greedy answers, with and without the grasp grammar.
 
     python -m kosmos_jax.evaluate --workdir=runs/demo [--step=N] [--split=test] [--json]
-        [--batch_size=16] [--max_examples=0] [--overlays=N] [--nounconstrained]
+        [--batch_size=16] [--max_examples=0] [--overlays=N] [--nounconstrained] [--mosaic_zoom]
     python -m kosmos_jax.evaluate --workdir=runs/demo --cornell=PATH [--kinds=non] [--json]
     python -m kosmos_jax.evaluate --pretrained=FOLDER --cornell=PATH [--kinds=non] [--out=DIR] [--json]
 
@@ -26,6 +26,10 @@ exported from a run (workdir.export) on a Cornell folder alike, into OUT/cornell
                      where the answer put the grasp; an unparsed answer is a miss);
   by_kind, by_scene  {group: accuracy, instructions, examples, unconstrained_accuracy,
                      unconstrained_parse_failures, target_ceiling};
+  mosaic_zoom        (--mosaic_zoom) {accuracy, instructions, by_scene, by_kind, mosaics_right_only_zoomed,
+                     mosaics_right_only_first}: each mosaic instruction answered again, as NON, on the
+                     quadrant its first answer chose, enlarged 2x (scoring/zoom.py); single photos keep
+                     their answer. answers.jsonl's mosaic rows add zoom_answer and zoom_correct;
 and the run, split, data source, text format and settings it was scored with.
 
 A baseline's run (configs/baselines.py, config.task "baseline") is scored the same way, one
@@ -73,6 +77,8 @@ def define_flags(flag_values: flags.FlagValues) -> None:
            lower_bound=0, upper_bound=MAX_ANGLE_WINDOW)
     define("bool", "unconstrained", True, "also decode without the grammar (the unconstrained_* figures); "
            "--nounconstrained decodes with the grammar only, in about half the time")
+    define("bool", "mosaic_zoom", False, "also answer each mosaic instruction again on the quadrant its first "
+           "answer chose, enlarged 2x (scoring/zoom.py): results' mosaic_zoom figures beside the one-pass ones")
     define("bool", "json", False, "print results.json as one line on stdout")
     define("integer", "overlays", 0, "N: draw N scored views of each instruction kind to "
            "eval/STEP/overlays/KIND.png (overlays.py)", lower_bound=0)
@@ -104,7 +110,8 @@ def evaluate_command(args) -> int:
         print(f"error: {misuse}", file=sys.stderr)
         return 1
     asked = dict(kinds=tuple(args.kinds), batch_size=args.batch_size, max_examples=args.max_examples,
-                   value_window=args.value_window, angle_window=args.angle_window, unconstrained=args.unconstrained)
+                   value_window=args.value_window, angle_window=args.angle_window, unconstrained=args.unconstrained,
+                 mosaic_zoom=args.mosaic_zoom)
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only
             if args.pretrained is not None:

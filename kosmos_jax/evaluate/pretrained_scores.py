@@ -38,11 +38,12 @@ def evaluate_pretrained(pretrained: str | os.PathLike, *, cornell: str | os.Path
                         kinds: Sequence[str] = (NON,), out: str | os.PathLike | None = None, batch_size: int = 16,
                         max_examples: int = 0, value_window: int | None = None,
                         angle_window: int | None = None,
-                        unconstrained: bool = True) -> tuple[dict, list[dict], pathlib.Path]:
+                        unconstrained: bool = True, mosaic_zoom: bool = False) -> tuple[dict, list[dict], pathlib.Path]:
     """(results, one row per example, the folder to write them to) of the exported folder
     `pretrained` on every photo of `cornell`. `out` (default runs/evaluate/NAME) must lie outside
     `pretrained`; value_window / angle_window None: as kosmos_e.json says; `unconstrained` False:
-    decoded with the grammar only."""
+    decoded with the grammar only; `mosaic_zoom`: also the mosaics answered again on their chosen
+    quadrant (scoring.zoom)."""
     if batch_size < 1 or max_examples < 0:
         raise ValueError("batch_size must be positive and max_examples at least 0")
     started = time.perf_counter()
@@ -69,7 +70,7 @@ def evaluate_pretrained(pretrained: str | os.PathLike, *, cornell: str | os.Path
                              angle_window=angle_window)
     evaluation = GraspEvaluation(model.config, mesh, made.records, tokenizer, config, "honest",
                                  batch_size=batch_size, max_examples=max_examples, **windows)
-    figures, rows = evaluation.results(params, unconstrained=unconstrained)
+    figures, rows = evaluation.results(params, unconstrained=unconstrained, mosaic_zoom=mosaic_zoom)
     label = f"cornell-{pathlib.Path(cornell).resolve().name}"
     results = {"accuracy": figures.pop("accuracy"), "pretrained": str(pretrained.resolve()),
                "step": settings["step"], "split": label, "cornell": str(pathlib.Path(cornell).resolve()),

@@ -33,13 +33,15 @@ Scored = tuple[dict, list[dict], pathlib.Path]  # results, one row per example, 
 def evaluate(workdir: str | os.PathLike, *, step: int | None = None, split: str = "test",
              cornell: str | os.PathLike | None = None, kinds: Sequence[str] = (NON,), batch_size: int = 16,
              max_examples: int = 0, value_window: int | None = None, angle_window: int | None = None,
-             unconstrained: bool = True) -> Scored:
+             unconstrained: bool = True, mosaic_zoom: bool = False) -> Scored:
     """The run in `workdir` scored at checkpoint `step` (None: the newest) on `split` of its data, or
     with `cornell` on every photo of that Cornell-format folder, asked the instruction `kinds`.
     `max_examples` decodes the first N examples (0: all). `value_window`: how coordinate value tokens
     are read (`models.value_decoding`; 0: greedy; None: as the run's config says); `angle_window`: how
     angle tokens are (0: the mode; None: as the run's config says). `unconstrained` False: a KOSMOS-E
-    run's answers are decoded with the grammar only (GraspEvaluation.results)."""
+    run's answers are decoded with the grammar only (GraspEvaluation.results). `mosaic_zoom` True: a
+    KOSMOS-E run's mosaic instructions are also answered again on the quadrant their first answer chose
+    (scoring.zoom), results' "mosaic_zoom" figures beside the one-pass ones."""
     if batch_size < 1 or max_examples < 0:
         raise ValueError("batch_size must be positive and max_examples at least 0")
     settings = dict(step=step, split=split, cornell=cornell, kinds=tuple(kinds), batch_size=batch_size,
@@ -51,12 +53,12 @@ def evaluate(workdir: str | os.PathLike, *, step: int | None = None, split: str 
 
         return evaluate_baseline(workdir, **settings)
     return evaluate_kosmos_e(workdir, **settings, value_window=value_window, angle_window=angle_window,
-                             unconstrained=unconstrained)
+                             unconstrained=unconstrained, mosaic_zoom=mosaic_zoom)
 
 
 def evaluate_kosmos_e(workdir, *, step: int | None, split: str, cornell, kinds: tuple[str, ...], batch_size: int,
                       max_examples: int, value_window: int | None = None, angle_window: int | None = None,
-                      unconstrained: bool = True) -> Scored:
+                      unconstrained: bool = True, mosaic_zoom: bool = False) -> Scored:
     """evaluate() on a KOSMOS-E run."""
     started = time.perf_counter()
     run = open_run(workdir)
@@ -73,7 +75,7 @@ def evaluate_kosmos_e(workdir, *, step: int | None, split: str, cornell, kinds: 
     windows = chosen_windows(configured_windows(run.config), value_window=value_window, angle_window=angle_window)
     evaluation = GraspEvaluation(run.model_config, mesh, examples, run.tokenizer, run.format_config, protocol,
                                  batch_size=batch_size, max_examples=max_examples, **windows)
-    figures, rows = evaluation.results(params, unconstrained=unconstrained)
+    figures, rows = evaluation.results(params, unconstrained=unconstrained, mosaic_zoom=mosaic_zoom)
     results = {"accuracy": figures.pop("accuracy"), "workdir": str(run.workdir.resolve()), "step": step,
                "split": label, **source, "representation": run.format_config.representation,
                "individual": run.format_config.individual, "angle_code": run.format_config.angle_code, **figures,

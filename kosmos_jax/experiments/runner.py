@@ -40,15 +40,18 @@ def default_train(config, workdir) -> dict:
     return train(config, workdir)
 
 
-def evaluate_run(workdir: pathlib.Path, step: int, unconstrained: bool = True) -> dict:
+def evaluate_run(workdir: pathlib.Path, step: int, unconstrained: bool = True, mosaic_zoom: bool = False) -> dict:
     """The run's test results at `step`, by the evaluate command's code (written under eval/STEP/);
-    `unconstrained` False: without the decoding that ignores the grammar (evaluate's docstring)."""
+    `unconstrained` False: without the decoding that ignores the grammar (evaluate's docstring);
+    `mosaic_zoom`: with the mosaics answered again on their chosen quadrant (scoring.zoom)."""
     existing = workdir / "eval" / str(step) / "results.json"
     if existing.is_file():
-        return json.loads(existing.read_text())
+        results = json.loads(existing.read_text())
+        if "mosaic_zoom" in results or not mosaic_zoom:
+            return results
     from kosmos_jax.evaluate.run_scores import evaluate, write
 
-    results, rows, folder = evaluate(workdir, step=step, unconstrained=unconstrained)
+    results, rows, folder = evaluate(workdir, step=step, unconstrained=unconstrained, mosaic_zoom=mosaic_zoom)
     write(results, rows, folder)
     return results
 

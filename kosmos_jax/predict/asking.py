@@ -20,9 +20,9 @@ import numpy as np
 
 from kosmos_jax.predict.errors import InstructionError
 from kosmos_jax.scoring.instructions import instructed_angle
+from kosmos_jax.scoring.prompts import written_prompt
 from kosmos_jax.scoring.questions import Question
 from kosmos_jax.text import formatter, layout
-from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import Tokenizer
 
 
@@ -63,11 +63,6 @@ def answer_kind(instruction: str) -> str:
     return "centre"
 
 
-def prompt_ids(tokenizer: Tokenizer, instruction: str, cue: str) -> np.ndarray:
-    ids = layout.prefix_ids(tokenizer) + [i for text in (instruction, cue) if text for i in tokenizer.encode(text)]
-    return np.asarray(ids, np.int32)
-
-
 def ask(instruction, tokenizer: Tokenizer, config: formatter.FormatConfig,
         questions: dict[tuple[str, str], Question], context: int) -> Asked:
     """The prompts of `instruction`; InstructionError if it is empty or too long for `context` tokens."""
@@ -76,14 +71,12 @@ def ask(instruction, tokenizer: Tokenizer, config: formatter.FormatConfig,
     prompts = []
     for part, cue in formatter.prompt_cues(config, answer):
         question = questions[(answer, part)]
-        ids = prompt_ids(tokenizer, cleaned, cue)
+        ids, image_mask = written_prompt(tokenizer, cleaned, cue)
         needed = len(ids) + question.max_new_tokens
         if needed > context:
             raise InstructionError(
                 f"the instruction is too long: its {len(cleaned.split())} words take {len(ids) - layout.PREFIX_LENGTH} tokens, and "
                 f"with the image prefix ({layout.PREFIX_LENGTH}) and the answer ({question.max_new_tokens}) the "
                 f"prompt needs {needed} tokens, more than the model's context of {context}")
-        image_mask = np.zeros(len(ids), bool)
-        image_mask[2:2 + special.IMAGE_SLOTS] = True
         prompts.append(Prompt(question, ids, image_mask))
     return Asked(cleaned, answer, tuple(prompts))

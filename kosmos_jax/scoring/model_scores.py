@@ -6,6 +6,7 @@ the grammar) -> parses -> one grasp per instruction -> rectangle metric.
     evaluation.target_ceiling()             # percent: the examples' own targets scored as answers
     results, answers = evaluation.results(params)   # both decodings, per kind and scene
     results, answers = evaluation.results(params, unconstrained=False)   # the constrained one alone
+    results, answers = evaluation.results(params, mosaic_zoom=True)      # and the mosaics answered again (zoom.py)
 
 Built once per split: the prompts, the batches (each part's prompts left-padded to one length,
 the last batch filled with copies of its first row, so each part compiles once), the constraints
@@ -26,13 +27,13 @@ from jax.sharding import Mesh
 
 from kosmos_jax.models.config import Kosmos2Config
 from kosmos_jax.models.value_decoding import value_picker
-from kosmos_jax.scoring import tally
+from kosmos_jax.scoring import tally, zoom
 from kosmos_jax.scoring.fold_scores import WH_POLICY
 from kosmos_jax.scoring.model_answers import Decoder
 from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
-from kosmos_jax.scoring.prompts import left_padded, prompt, target_ids
+from kosmos_jax.scoring.prompts import left_padded, prompt, target_ids, written_prompt
 from kosmos_jax.scoring.questions import Question, questions
-from kosmos_jax.text.formatter import FormatConfig
+from kosmos_jax.text.formatter import FormatConfig, prompt_cues
 from kosmos_jax.text.tokenizer import Tokenizer
 
 
@@ -64,6 +65,7 @@ class GraspEvaluation:
         if not self.instructions:
             raise ValueError(f"max_examples={max_examples} holds no whole instruction" if every else "no examples")
         asked = questions(tokenizer, config, model_config.text.vocab_size)
+        self.asked, self.tokenizer, self.batch_size = asked, tokenizer, batch_size
         self.question_of: dict[int, Question] = {}
         self.target_ids: dict[int, np.ndarray] = {}  # each example's stored value tokens and </s>
         prompts = {}
@@ -99,6 +101,36 @@ class GraspEvaluation:
                 out[index] = question.parse(generated, self.config)
         return out
 
+    def zoomed_grasps(self, params, first: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
+        """([G, 3] each mosaic instruction answered again as NON on the quadrant of its `first` grasp
+        ([G, 3], grasps()), in the mosaic's pixels, and NaN for the other instructions; {instruction
+        number: the zoomed answer's text}). See zoom.py."""
+        records = getattr(self.split, "examples", self.split)
+        mosaics = [g for g, instruction in enumerate(self.instructions) if instruction.scene == "multi"]
+        image = lambda g: records[min(self.instructions[g].examples.values())]["image"]
+        asked = [(g, corner) for g in mosaics
+                 for corner in zoom.quadrant_corners(first[g:g + 1, :2], image(g).shape[0]) if corner[0] >= 0]
+        parsed: dict[int, dict] = {g: {} for g, _ in asked}
+        texts: dict[int, list[str]] = {g: [] for g, _ in asked}
+        for part, cue in prompt_cues(self.config, "grasp"):
+            question = self.asked[("grasp", part)]
+            tokens, slots = written_prompt(self.tokenizer, "", cue)
+            for start in range(0, len(asked), self.batch_size):
+                rows = asked[start:start + self.batch_size]
+                filled = rows + [rows[0]] * (self.batch_size - len(rows))
+                ids, mask, image_mask = left_padded([(tokens, slots)] * len(filled), len(tokens), self.tokenizer.pad_id)
+                images = np.stack([zoom.zoomed_view(image(g), corner) for g, corner in filled])
+                generated = self.decoder(params, images, ids, mask, image_mask, question.prompt.constraint,
+                                         question.max_new_tokens)
+                for (g, _), answer in zip(rows, generated):
+                    answer_text, parsed[g][part] = question.parse(answer, self.config)
+                    texts[g].append(answer_text)
+        grasps = np.full((len(self.instructions), 3), np.nan)
+        for g, corner in asked:
+            non = Instruction("non", "single", "", {part: 0 for part in parsed[g]}, np.zeros((0, 5), np.float32))
+            grasps[g] = zoom.from_zoomed(combine(non, parsed[g])[None], corner[None])[0]
+        return grasps, {g: " ".join(parts) for g, parts in texts.items()}
+
     def targets(self) -> dict[int, tuple[str, object]]:
         """{example index: (target text, its parse)} of every example: its stored target tokens read
         as answers() reads generated ones."""
@@ -120,16 +152,19 @@ class GraspEvaluation:
         """Percent of instructions whose constrained answers make a correct grasp."""
         return tally.percent(self.successes(self.answers(params)))
 
-    def results(self, params, unconstrained: bool = True) -> tuple[dict, list[dict]]:
+    def results(self, params, unconstrained: bool = True, mosaic_zoom: bool = False) -> tuple[dict, list[dict]]:
         """(figures of both decodings and of the targets, overall and per kind and scene, and the
         distinct answers and targets; one row per example with both answers). `unconstrained` False
-        decodes with the grammar alone (half the time): the unconstrained figures and answers are left out."""
+        decodes with the grammar alone (half the time): the unconstrained figures and answers are left out.
+        `mosaic_zoom`: also "mosaic_zoom", the figures with every mosaic instruction answered again on
+        the quadrant its first answer chose (zoomed_grasps), and each mosaic row's zoom_answer and zoom_correct."""
         held = self.answers(params, constrained=True)
         free = self.answers(params, constrained=False) if unconstrained else None
         held_grasps = self.grasps(held)
         success = tally.successes(self.instructions, held_grasps, self.protocol, self.backend)
         angle_errors = tally.angle_errors(self.instructions, held_grasps)
         free_success = self.successes(free) if unconstrained else None
+        zoomed = self.zoom_figures(params, held_grasps, success) if mosaic_zoom else None
         targets = self.targets()
         ceiling = self.successes(targets)
         free_failed = np.array([sum(not free[i][1].ok for i in inst.examples.values())
@@ -155,6 +190,8 @@ class GraspEvaluation:
                    "by_kind": groups(lambda i: i.kind), "by_scene": groups(lambda i: i.scene)}
         for scene, members in tally.group_members(self.instructions, lambda i: i.scene).items():
             results["by_scene"][scene]["angle_at_centre"] = tally.angle_fit(angle_errors[members])
+        if zoomed is not None:
+            results["mosaic_zoom"], zoom_success, zoom_texts = zoomed
         records = getattr(self.split, "examples", self.split)
         rows = [{"example": index, "kind": instruction.kind, "scene": instruction.scene, "part": part,
                  "photo_ids": [text(p) for p in records[index]["photo_ids"]],
@@ -162,6 +199,23 @@ class GraspEvaluation:
                  "answer": held[index][0], "answer_parses": held[index][1].ok, "correct": bool(success[number]),
                  **({"unconstrained_answer": free[index][0], "unconstrained_parses": free[index][1].ok,
                      "unconstrained_correct": bool(free_success[number])} if unconstrained else {}),
+                 **({"zoom_answer": zoom_texts.get(number), "zoom_correct": bool(zoom_success[number])}
+                    if zoomed is not None and instruction.scene == "multi" else {}),
                  "target_correct": bool(ceiling[number])}
                 for number, instruction in enumerate(self.instructions) for part, index in instruction.examples.items()]
         return results, rows
+
+    def zoom_figures(self, params, first: np.ndarray, success: np.ndarray) -> tuple[dict, np.ndarray, dict[int, str]]:
+        """(the "mosaic_zoom" figures, bool [G] whether each instruction hits with the zoom, {instruction
+        number: zoomed answer}): single photos keep their first answer; the mosaic instructions right only
+        with the zoom and only without it."""
+        zoomed, texts = self.zoomed_grasps(params, first)
+        mosaic = np.array([instruction.scene == "multi" for instruction in self.instructions])
+        hits = np.where(mosaic, tally.successes(self.instructions, np.where(mosaic[:, None], zoomed, first),
+                                                self.protocol, self.backend), success)
+        figures = {"accuracy": tally.percent(hits), "instructions": len(self.instructions),
+                   "by_scene": tally.group_accuracy(self.instructions, hits, lambda i: i.scene),
+                   "by_kind": tally.group_accuracy(self.instructions, hits, lambda i: i.kind),
+                   "mosaics_right_only_zoomed": int((hits & ~success).sum()),
+                   "mosaics_right_only_first": int((success & ~hits).sum())}
+        return figures, hits, texts

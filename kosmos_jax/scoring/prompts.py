@@ -14,6 +14,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from kosmos_jax.scoring.instructions import text
+from kosmos_jax.text import layout
+from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import Tokenizer
 
 
@@ -45,6 +47,16 @@ def prompt(record: Mapping, tokenizer: Tokenizer, cue: str) -> tuple[np.ndarray,
     """(token ids, image mask) of the record's prompt: its stored tokens before the value."""
     tokens, start = _answer_start(record, tokenizer, cue)
     return tokens[:start], np.asarray(record["image_mask"], bool)[:start]
+
+
+def written_prompt(tokenizer: Tokenizer, instruction: str, cue: str) -> tuple[np.ndarray, np.ndarray]:
+    """(token ids, image mask) of a prompt made from text, as the build lays out a stored one: the image
+    prefix, then the instruction ("" for NON: none) and the cue, each encoded on its own."""
+    ids = layout.prefix_ids(tokenizer) + [i for segment in (instruction, cue) if segment
+                                          for i in tokenizer.encode(segment)]
+    image_mask = np.zeros(len(ids), bool)
+    image_mask[2:2 + special.IMAGE_SLOTS] = True
+    return np.asarray(ids, np.int32), image_mask
 
 
 def target_ids(record: Mapping, tokenizer: Tokenizer, cue: str) -> np.ndarray:

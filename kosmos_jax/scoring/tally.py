@@ -182,4 +182,10 @@ def markdown(results: dict) -> str:
         fit = results["angle_at_centre"]
         table += (f"\nAngle at the answered centre: {fit['within_30_deg']:.2f}% of {fit['instructions']} instructions "
                   f"within 30 degrees of the ground truth nearest the answered centre (median {fit['median_deg']}).\n")
+    if "mosaic_zoom" in results and "multi" in results["mosaic_zoom"]["by_scene"]:
+        zoomed, first = results["mosaic_zoom"], results["by_scene"]["multi"]
+        table += (f"\nMosaic zoom (each mosaic instruction answered again on the quadrant its first answer chose): "
+                  f"{zoomed['by_scene']['multi']['accuracy']:.2f}% of {first['instructions']} mosaic instructions "
+                  f"against {first['accuracy']:.2f}% in one pass ({zoomed['mosaics_right_only_zoomed']} right only "
+                  f"zoomed, {zoomed['mosaics_right_only_first']} only in one pass); all {zoomed['accuracy']:.2f}%.\n")
     return table
