@@ -51,6 +51,13 @@ def values_workdir(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def mosaic_workdir(tmp_path_factory):
+    """A tiny run of two steps whose dataset holds mosaics (NON and the multi-object kinds), as make demo's does."""
+    return train_tiny(tmp_path_factory.mktemp("mosaic_run"), tmp_path_factory.mktemp("mosaic_datasets"),
+                      "--config.data.build.kinds=non,multi", "--config.data.build.max_length=160")
+
+
+@pytest.fixture(scope="session")
 def evaluated(workdir):
     """`python -m kosmos_jax.evaluate --workdir=W --json`: (stdout, results folder)."""
     done = run_module("kosmos_jax.evaluate", f"--workdir={workdir}", "--json")
@@ -534,14 +541,19 @@ def test_a_prompt_written_from_text_is_the_prompt_the_build_stored(workdir, tmp_
     assert ("non", False) in checked and any(has_text for _, has_text in checked)
 
 
-def test_a_mosaic_s_zoomed_answer_is_the_answer_to_a_non_example_showing_its_quadrant(workdir, tmp_path):
+@pytest.mark.parametrize("stored", [False, True], ids=["cornell_folder", "stored_split"])
+def test_a_mosaic_s_zoomed_answer_is_the_answer_to_a_non_example_showing_its_quadrant(stored, request, tmp_path):
     """zoomed_grasps against the one-pass evaluation: NON examples whose image is each mosaic's chosen
     quadrant enlarged, answered and combined as any example is, then mapped back (one row a batch:
-    the same computation, to the bit)."""
-    run = open_run(workdir)
-    folder = tmp_path / "photos"
-    scenes.write_dataset(folder, photos=4, seed=11)
-    records = cornell_examples(folder, run.tokenizer, run.format_config, ("non", "multi")).records
+    the same computation, to the bit). On a Cornell folder's records (images in them) and on a run's
+    stored test split (its images joined back on reading, as make demo's held-out fold)."""
+    run = open_run(request.getfixturevalue("mosaic_workdir" if stored else "workdir"))
+    if stored:
+        records = run.split("test")
+    else:
+        folder = tmp_path / "photos"
+        scenes.write_dataset(folder, photos=4, seed=11)
+        records = cornell_examples(folder, run.tokenizer, run.format_config, ("non", "multi")).records
     mesh = make_mesh(1, -1, 1)
     _, params = run.params(None, mesh)
     evaluate_records = lambda examples: GraspEvaluation(run.model_config, mesh, examples, run.tokenizer,

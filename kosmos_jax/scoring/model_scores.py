@@ -105,9 +105,8 @@ class GraspEvaluation:
         """([G, 3] each mosaic instruction answered again as NON on the quadrant of its `first` grasp
         ([G, 3], grasps()), in the mosaic's pixels, and NaN for the other instructions; {instruction
         number: the zoomed answer's text}). See zoom.py."""
-        records = getattr(self.split, "examples", self.split)
         mosaics = [g for g, instruction in enumerate(self.instructions) if instruction.scene == "multi"]
-        image = lambda g: records[min(self.instructions[g].examples.values())]["image"]
+        image = lambda g: self.split[min(self.instructions[g].examples.values())]["image"]  # a StoredSplit reads it
         asked = [(g, corner) for g in mosaics
                  for corner in zoom.quadrant_corners(first[g:g + 1, :2], image(g).shape[0]) if corner[0] >= 0]
         parsed: dict[int, dict] = {g: {} for g, _ in asked}
