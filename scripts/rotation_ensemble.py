@@ -1,7 +1,7 @@
 """Single photos answered on the view and its quarter turns (and mirror images), combined: a probe.
 
     python scripts/rotation_ensemble.py --workdir=RUN --cornell=datasets/synthetic-300-seed7 \
-        [--views=4] [--records=FILE.jsonl]
+        [--views=4] [>> RECORDS.jsonl]
 
 Each photo's NON instruction is answered on the view turned by k quarter turns anticlockwise
 (np.rot90, exact pixels; views 5 to 8 mirror it left to right first), each answer mapped back to the
@@ -9,7 +9,7 @@ view (a quarter turn moves (x, y) to (y, S - x) and adds pi/2 to the angle; the 
 S - x and negates the angle). Then two ways of combining them: `consensus`, the answer that agrees
 with most of the others (centres within 10 px, angles within 30 degrees; ties go to the unturned
 view's), and `cluster_mean`, the mean of the answers agreeing with that one (the angle's mean of
-exp(2i theta)). Prints one JSON line (appended to --records): each view's accuracy, both
+exp(2i theta)). Prints one JSON line: each view's accuracy, both
 combinations', and `any_view`, the share right in at least one view.
 """
 
@@ -46,7 +46,6 @@ def main() -> None:
     parser.add_argument("--workdir", required=True)
     parser.add_argument("--cornell", required=True)
     parser.add_argument("--views", type=int, choices=range(1, 9), default=4)
-    parser.add_argument("--records", default=None)
     args = parser.parse_args()
     run, mesh = open_run(args.workdir), make_mesh(1, -1, 1)
     _, params = run.params(None, mesh)
@@ -74,9 +73,6 @@ def main() -> None:
                "cluster_mean": percent(tally.successes(instructions, mean, "honest")),
                "any_view": percent(np.any(hits, axis=0)), "instructions": len(instructions)}
     print(json.dumps(figures))
-    if args.records:
-        with open(args.records, "a") as records_file:
-            records_file.write(json.dumps(figures) + "\n")
 
 
 if __name__ == "__main__":

@@ -1,13 +1,13 @@
 """The mosaic zoom's variants, a probe: which window and which enlargement (scoring/zoom.py chose on it).
 
     python scripts/zoom_variants.py --workdir=RUN --cornell=datasets/synthetic-300-seed7 \
-        [--window=quadrant|centred] [--interpolation=linear|cubic] [--records=FILE.jsonl]
+        [--window=quadrant|centred] [--interpolation=linear|cubic] [>> RECORDS.jsonl]
 
 Decodes the run's answers to every photo's NON and multi-object instructions of the folder (one pass,
 as the evaluate command does), then answers each mosaic instruction again as NON on a window of half
 the mosaic's side, enlarged 2x: `quadrant`, the quadrant holding the first answer's centre (what
 the evaluate command's --mosaic_zoom does); `centred`, the window centred on that answer, kept
-inside the mosaic. Prints one JSON line (and appends it to --records): single photos and mosaics in
+inside the mosaic. Prints one JSON line: single photos and mosaics in
 one pass, the mosaics zoomed, the mosaic instructions right only zoomed and only in one pass, and
 per kind (instructions, right in one pass, right zoomed).
 """
@@ -46,7 +46,6 @@ def main() -> None:
     parser.add_argument("--cornell", required=True)
     parser.add_argument("--window", choices=("quadrant", "centred"), default="quadrant")
     parser.add_argument("--interpolation", choices=sorted(ENLARGEMENTS), default="linear")
-    parser.add_argument("--records", default=None)
     args = parser.parse_args()
     run, mesh = open_run(args.workdir), make_mesh(1, -1, 1)
     step, params = run.params(None, mesh)
@@ -91,9 +90,6 @@ def main() -> None:
     figures["mcnemar_z"] = round((figures["right_only_zoomed"] - figures["right_only_one_pass"]) / discordant ** 0.5, 2) \
         if discordant else 0.0
     print(json.dumps(figures))
-    if args.records:
-        with open(args.records, "a") as records_file:
-            records_file.write(json.dumps(figures) + "\n")
 
 
 if __name__ == "__main__":
