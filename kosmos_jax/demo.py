@@ -21,8 +21,9 @@
    `honest` and `paper` protocols and the `exact` and `reference` IoU backends; the same on the real
    Cornell files when present (../shared/data/cornell, or config.cornell).
 Prints both tables and writes OUT/results.json: one row per (data, protocol, split, backend,
-scene, predictor), `predictor` = kosmos_e for the trained model (kosmos_e+zoom with the mosaic zoom). The footnotes say how many views
-had no ground truth left to score against (skipped) and how many folds had no scored view.
+scene, predictor), `predictor` = kosmos_e for the trained model (kosmos_e+zoom with the mosaic
+zoom). The footnotes say how many views had no ground truth left to score against (skipped) and
+how many folds had no scored view.
 """
 
 from __future__ import annotations

@@ -110,7 +110,7 @@ def evaluate_command(args) -> int:
         print(f"error: {misuse}", file=sys.stderr)
         return 1
     asked = dict(kinds=tuple(args.kinds), batch_size=args.batch_size, max_examples=args.max_examples,
-                   value_window=args.value_window, angle_window=args.angle_window, unconstrained=args.unconstrained,
+                 value_window=args.value_window, angle_window=args.angle_window, unconstrained=args.unconstrained,
                  mosaic_zoom=args.mosaic_zoom)
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout holds the results only

@@ -37,8 +37,8 @@ DEFAULT_OUT = pathlib.Path("runs") / "evaluate"  # + the folder's name, relative
 def evaluate_pretrained(pretrained: str | os.PathLike, *, cornell: str | os.PathLike,
                         kinds: Sequence[str] = (NON,), out: str | os.PathLike | None = None, batch_size: int = 16,
                         max_examples: int = 0, value_window: int | None = None,
-                        angle_window: int | None = None,
-                        unconstrained: bool = True, mosaic_zoom: bool = False) -> tuple[dict, list[dict], pathlib.Path]:
+                        angle_window: int | None = None, unconstrained: bool = True,
+                        mosaic_zoom: bool = False) -> tuple[dict, list[dict], pathlib.Path]:
     """(results, one row per example, the folder to write them to) of the exported folder
     `pretrained` on every photo of `cornell`. `out` (default runs/evaluate/NAME) must lie outside
     `pretrained`; value_window / angle_window None: as kosmos_e.json says; `unconstrained` False:
