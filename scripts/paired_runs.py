@@ -1,13 +1,14 @@
 """Two runs' answers to the same instructions, paired: how many each got right that the other did not.
 
     python scripts/paired_runs.py --baseline=demo_out/run --candidate=runs/ft/px224_s0 \
-        [--scored=cornell-synthetic-300-seed7] [--step=N]
+        [--scored=cornell-synthetic-300-seed7] [--step=N] [--zoomed]
 
 Reads the answers.jsonl that `python -m kosmos_jax.evaluate --cornell=...` wrote for each run (the same folder and
 kinds: the pairs are checked example by example) and prints one JSON line per scene (single photos, mosaics): the
 instructions, each run's right answers, those right only for one of them, and McNemar's z, (only candidate - only
 baseline) / sqrt(their sum): a difference between two runs on the same instructions beyond what chance splits of
-the discordant pairs give (|z| > 2 at about 5%). Every part row of an instruction carries the instruction's result;
+the discordant pairs give (|z| > 2 at about 5%). --zoomed adds a line for the mosaics as the mosaic zoom answered
+them (both runs scored with evaluate --mosaic_zoom). Every part row of an instruction carries the instruction's result;
 the first row of each stands for it.
 """
 
@@ -22,9 +23,14 @@ from kosmos_jax.workdir.checkpoints import chosen_step
 from kosmos_jax.workdir.files import RunError
 
 
-def instruction_results(rows: list[dict]) -> dict[int, tuple]:
+def instruction_results(rows: list[dict], zoomed: bool = False) -> dict[int, tuple]:
     """{first example index: (kind, scene, target text, right)} of each instruction in evaluate's answer rows
-    (an instruction's parts are consecutive rows, each part once)."""
+    (an instruction's parts are consecutive rows, each part once). `zoomed`: the mosaic instructions alone,
+    right as the mosaic zoom answered them (evaluate --mosaic_zoom's zoom_correct), scene "multi, zoomed"."""
+    if zoomed:
+        rows = [{**row, "scene": "multi, zoomed", "correct": row["zoom_correct"]} for row in rows if "zoom_correct" in row]
+        if not rows:
+            raise RunError("no answer row holds zoom_correct: score the run with evaluate --mosaic_zoom and mosaics")
     results, key, parts = {}, None, set()
     for row in rows:
         row_key = (row["kind"], tuple(row["photo_ids"]), row["instruction"])
@@ -57,11 +63,14 @@ def main() -> None:
     parser.add_argument("--candidate", required=True)
     parser.add_argument("--scored", default="cornell-synthetic-300-seed7")
     parser.add_argument("--step", type=int, default=None, help="checkpoint step (default: each run's newest)")
+    parser.add_argument("--zoomed", action="store_true", help="also a line for the mosaics as the zoom answered them")
     args = parser.parse_args()
     try:
         answers = [read_answers(pathlib.Path(workdir), chosen_step(pathlib.Path(workdir), args.step), args.scored)
                    for workdir in (args.baseline, args.candidate)]
         lines = paired(*(instruction_results(rows) for rows in answers))
+        if args.zoomed:
+            lines += paired(*(instruction_results(rows, zoomed=True) for rows in answers))
     except RunError as error:
         sys.exit(f"error: {error}")
     for line in lines:

@@ -43,3 +43,20 @@ def test_runs_that_answered_other_instructions_are_refused():
     other[2]["target_text"] = "another target"
     with pytest.raises(RunError, match="did not answer the same instructions"):
         paired_runs.paired(baseline, paired_runs.instruction_results(other))
+
+
+def test_the_zoomed_mosaics_are_paired_by_their_zoomed_answers():
+    def mosaic_rows(first: list[bool], zoomed: list[bool]) -> list[dict]:
+        out = rows(first, scene="multi")
+        for row in out:
+            row["zoom_correct"] = zoomed[int(row["target_text"][1])]
+        return rows([True], scene="single") + out  # a single photo's rows have no zoom_correct
+
+    baseline = paired_runs.instruction_results(mosaic_rows([False, False, True], [True, False, True]), zoomed=True)
+    candidate = paired_runs.instruction_results(mosaic_rows([False, False, False], [True, True, False]), zoomed=True)
+    (line,) = paired_runs.paired(baseline, candidate)
+    assert line == {"scene": "multi, zoomed", "instructions": 3, "baseline_right": 2, "candidate_right": 2,
+                    "only_candidate": 1, "only_baseline": 1, "mcnemar_z": 0.0}
+    with pytest.raises(RunError, match="score the run with evaluate --mosaic_zoom"):
+        paired_runs.instruction_results(rows([True, False]), zoomed=True)
+
