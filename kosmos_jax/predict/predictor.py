@@ -38,7 +38,7 @@ from kosmos_jax.predict.framing import PHOTO_SHORT_SIDE, Framing, frame
 from kosmos_jax.predict.images import load_image
 from kosmos_jax.workdir.sizes import CORNELL_SIZE, run_grasp_size
 from kosmos_jax.scoring.model_answers import Decoder
-from kosmos_jax.scoring.instructions import Instruction, combine
+from kosmos_jax.scoring.instructions import combine_asked
 from kosmos_jax.scoring.prompts import left_padded
 from kosmos_jax.scoring.questions import questions
 from kosmos_jax.text.formatter import FormatConfig
@@ -206,10 +206,7 @@ class GraspPredictor:
 
     def _grasp(self, asked: Asked, framing: Framing, answers: dict[str, tuple]) -> Grasp:
         parsed = {part: parse for part, (_, parse) in answers.items()}
-        # the kind only tells combine what was asked: the centre alone (an angle instruction) or a grasp
-        instruction = Instruction("angle" if asked.answer == "centre" else "non", "single", asked.instruction,
-                                  {part: row for row, part in enumerate(parsed)}, np.zeros((0, 5), np.float32))
-        x, y, theta = combine(instruction, parsed)
+        x, y, theta = combine_asked(asked.answer, asked.instruction, parsed)
         stated = parsed["grasp" if "grasp" in parsed else "location"].grasp[2:4]
         width, jaw = stated if np.isfinite(stated).all() else self.grasp_size
         in_photo = framing.to_photo(np.array([x, y, width, jaw, theta]))

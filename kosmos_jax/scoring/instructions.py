@@ -83,6 +83,15 @@ def instructed_angle(instruction: str) -> float:
     return float(geometry.decode_angle(np.int64(found[0])))
 
 
+def combine_asked(answer: str, instruction: str, parsed: Mapping[str, ParsedGrasp]) -> np.ndarray:
+    """combine() for answers to an instruction asked from text, with no stored examples or ground truth
+    (the predict command's, the mosaic zoom's): `answer` "grasp", or "centre" when `instruction` states
+    its angle."""
+    asked = Instruction("angle" if answer == "centre" else "non", "single", instruction, dict.fromkeys(parsed, 0),
+                        np.zeros((0, 5), np.float32))
+    return combine(asked, parsed)
+
+
 def combine(instruction: Instruction, parsed: Mapping[str, ParsedGrasp]) -> np.ndarray:
     """(x, y, theta) of the instruction's answers, NaN where any of them did not parse: the centre
     of the grasp or location answer, the angle of the grasp or angle answer, or the instructed

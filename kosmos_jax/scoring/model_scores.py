@@ -30,7 +30,7 @@ from kosmos_jax.models.value_decoding import value_picker
 from kosmos_jax.scoring import tally, zoom
 from kosmos_jax.scoring.fold_scores import WH_POLICY
 from kosmos_jax.scoring.model_answers import Decoder
-from kosmos_jax.scoring.instructions import Instruction, combine, group_instructions, text
+from kosmos_jax.scoring.instructions import Instruction, combine, combine_asked, group_instructions, text
 from kosmos_jax.scoring.prompts import left_padded, prompt, target_ids, written_prompt
 from kosmos_jax.scoring.questions import Question, questions
 from kosmos_jax.text.formatter import FormatConfig, prompt_cues
@@ -104,31 +104,33 @@ class GraspEvaluation:
     def zoomed_grasps(self, params, first: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
         """([G, 3] each mosaic instruction answered again as NON on the quadrant of its `first` grasp
         ([G, 3], grasps()), in the mosaic's pixels, and NaN for the other instructions; {instruction
-        number: the zoomed answer's text}). See zoom.py."""
+        number: the zoomed answer's text}). See zoom.py. Each mosaic is read and enlarged once, every
+        part of the answer decoded on it."""
+        grasps, texts = np.full((len(self.instructions), 3), np.nan), {}
         mosaics = [g for g, instruction in enumerate(self.instructions) if instruction.scene == "multi"]
-        image = lambda g: self.split[min(self.instructions[g].examples.values())]["image"]  # a StoredSplit reads it
-        asked = [(g, corner) for g in mosaics
-                 for corner in zoom.quadrant_corners(first[g:g + 1, :2], image(g).shape[0]) if corner[0] >= 0]
-        parsed: dict[int, dict] = {g: {} for g, _ in asked}
-        texts: dict[int, list[str]] = {g: [] for g, _ in asked}
-        for part, cue in prompt_cues(self.config, "grasp"):
-            question = self.asked[("grasp", part)]
-            tokens, slots = written_prompt(self.tokenizer, "", cue)
-            for start in range(0, len(asked), self.batch_size):
-                rows = asked[start:start + self.batch_size]
-                filled = rows + [rows[0]] * (self.batch_size - len(rows))
-                ids, mask, image_mask = left_padded([(tokens, slots)] * len(filled), len(tokens), self.tokenizer.pad_id)
-                images = np.stack([zoom.zoomed_view(image(g), corner) for g, corner in filled])
+        if not mosaics:
+            return grasps, texts
+        image_of = lambda g: self.split[min(self.instructions[g].examples.values())]["image"]  # a StoredSplit reads it
+        corners = zoom.quadrant_corners(first[mosaics, :2], image_of(mosaics[0]).shape[0])  # one view size a split
+        asked = [(g, corner) for g, corner in zip(mosaics, corners) if corner[0] >= 0]
+        parts = [(part, self.asked[("grasp", part)], written_prompt(self.tokenizer, "", cue))
+                 for part, cue in prompt_cues(self.config, "grasp")]
+        for start in range(0, len(asked), self.batch_size):
+            rows = asked[start:start + self.batch_size]
+            views = [zoom.zoomed_view(image_of(g), corner) for g, corner in rows]
+            images = np.stack(views + [views[0]] * (self.batch_size - len(rows)))
+            parsed, said = [{} for _ in rows], [[] for _ in rows]
+            for part, question, (tokens, slots) in parts:
+                ids, mask, image_mask = left_padded([(tokens, slots)] * len(images), len(tokens), self.tokenizer.pad_id)
                 generated = self.decoder(params, images, ids, mask, image_mask, question.prompt.constraint,
                                          question.max_new_tokens)
-                for (g, _), answer in zip(rows, generated):
-                    answer_text, parsed[g][part] = question.parse(answer, self.config)
-                    texts[g].append(answer_text)
-        grasps = np.full((len(self.instructions), 3), np.nan)
-        for g, corner in asked:
-            non = Instruction("non", "single", "", {part: 0 for part in parsed[g]}, np.zeros((0, 5), np.float32))
-            grasps[g] = zoom.from_zoomed(combine(non, parsed[g])[None], corner[None])[0]
-        return grasps, {g: " ".join(parts) for g, parts in texts.items()}
+                for row, answer in enumerate(generated[:len(rows)]):
+                    answer_text, parsed[row][part] = question.parse(answer, self.config)
+                    said[row].append(answer_text)
+            for row, (g, corner) in enumerate(rows):
+                grasps[g] = zoom.from_zoomed(combine_asked("grasp", "", parsed[row])[None], corner[None])[0]
+                texts[g] = " ".join(said[row])
+        return grasps, texts
 
     def targets(self) -> dict[int, tuple[str, object]]:
         """{example index: (target text, its parse)} of every example: its stored target tokens read
@@ -210,8 +212,7 @@ class GraspEvaluation:
         with the zoom and only without it."""
         zoomed, texts = self.zoomed_grasps(params, first)
         mosaic = np.array([instruction.scene == "multi" for instruction in self.instructions])
-        hits = np.where(mosaic, tally.successes(self.instructions, np.where(mosaic[:, None], zoomed, first),
-                                                self.protocol, self.backend), success)
+        hits = tally.successes(self.instructions, np.where(mosaic[:, None], zoomed, first), self.protocol, self.backend)
         figures = {"accuracy": tally.percent(hits), "instructions": len(self.instructions),
                    "by_scene": tally.group_accuracy(self.instructions, hits, lambda i: i.scene),
                    "by_kind": tally.group_accuracy(self.instructions, hits, lambda i: i.kind),

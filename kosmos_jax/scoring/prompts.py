@@ -15,7 +15,6 @@ import numpy as np
 
 from kosmos_jax.scoring.instructions import text
 from kosmos_jax.text import layout
-from kosmos_jax.text import tokens as special
 from kosmos_jax.text.tokenizer import Tokenizer
 
 
@@ -54,9 +53,7 @@ def written_prompt(tokenizer: Tokenizer, instruction: str, cue: str) -> tuple[np
     prefix, then the instruction ("" for NON: none) and the cue, each encoded on its own."""
     ids = layout.prefix_ids(tokenizer) + [i for segment in (instruction, cue) if segment
                                           for i in tokenizer.encode(segment)]
-    image_mask = np.zeros(len(ids), bool)
-    image_mask[2:2 + special.IMAGE_SLOTS] = True
-    return np.asarray(ids, np.int32), image_mask
+    return np.asarray(ids, np.int32), layout.slots_mask(len(ids))
 
 
 def target_ids(record: Mapping, tokenizer: Tokenizer, cue: str) -> np.ndarray:

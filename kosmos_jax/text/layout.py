@@ -41,6 +41,13 @@ def prefix_ids(tokenizer: Tokenizer) -> list[int]:
     return [tokenizer.bos_id, tokenizer.image_start_id, *special.IMAGE_SLOT_IDS, tokenizer.image_end_id]
 
 
+def slots_mask(length: int) -> np.ndarray:
+    """bool [length]: the image slots' fixed positions after <s><image>."""
+    mask = np.zeros(length, bool)
+    mask[2 : 2 + special.IMAGE_SLOTS] = True
+    return mask
+
+
 def segment_ids(tokenizer: Tokenizer, example: TextExample) -> list[tuple[list[int], bool]]:
     """(ids, is_target) of the instruction, the cue and the value, skipping empty ones."""
     segments = [(example.instruction, False), (example.cue, False), (example.value, True)]
@@ -73,8 +80,7 @@ def encode_example(example: TextExample, tokenizer: Tokenizer, config: FormatCon
     tokens[:length] = ids
     loss_mask = np.zeros(config.max_length, bool)
     loss_mask[:length] = in_loss
-    image_mask = np.zeros(config.max_length, bool)
-    image_mask[2 : 2 + special.IMAGE_SLOTS] = True
+    image_mask = slots_mask(config.max_length)
     return {
         "tokens": tokens,
         "loss_mask": loss_mask,
