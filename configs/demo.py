@@ -17,7 +17,9 @@
     python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding16400 \
         --config.peak_lr=3e-4 --config.out=demo_g16400             # make demo on 2026-12-06
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_config=configs/kosmos_e.py:demo_grounded224 \
-        --config.out=demo_g21200_random                            # make demo on 2026-12-07
+        --config.out=demo_g21200_random                            # make demo on 2026-12-07 (morning)
+    python -m kosmos_jax.demo --config=configs/demo.py --config.init_from=results/pretrain/grounding21200 \
+        --config.out=demo_g21200                                   # make demo on 2026-12-07 (afternoon)
     python -m kosmos_jax.demo --config=configs/demo.py --config.train_seed=1 --config.out=demo_seed1   # another seed
 """
 

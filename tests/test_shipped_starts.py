@@ -12,7 +12,7 @@ import pytest
 import shapely
 
 from kosmos_jax.experiments.spec import (DEMO_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING16400_START,
-                                        GROUNDING_START, SHIPPED_START, load_config)
+                                        GROUNDING21200_START, GROUNDING_START, SHIPPED_START, load_config)
 from kosmos_jax.models import weights
 from kosmos_jax.predict.predictor import GraspPredictor
 from kosmos_jax.sources import cornell
@@ -25,7 +25,7 @@ from user_commands import REPO, run_module
 # 13 s and 7-10 s on 2026-12-06's faster cores, `pytest --durations` alone)
 STARTS = (DEMO_START, *(pytest.param(start, marks=pytest.mark.slow)
                          for start in (SHIPPED_START, GROUNDING6000_START, GROUNDING10000_START, GROUNDING_START,
-                                       GROUNDING16400_START)))
+                                       GROUNDING16400_START, GROUNDING21200_START)))
 EVERY = 5  # every fifth photo: 21 of the 101
 
 

@@ -49,10 +49,12 @@ SHIPPED_START = "results/pretrain/demo_photos1200"
 # and make demo until 2026-12-06: pretrained on scenes made on the fly for 6,000 steps, then 4,000 more twice, its
 # connector reads the instruction (results/pretrain/README.md)
 GROUNDING_START = "results/pretrain/grounding14000"
+# grounding21200 continued for 2,400 steps at a peak rate of 2e-4 on the same chunks of scenes: make demo's start
+# since 2026-12-07's evening (configs/kosmos_e.py:demo_grounded224_consensus, results/finer_grid/README.md)
+DEMO_START = "results/pretrain/grounding23600_lr2e-4"
 # that start continued for 7,200 steps on a 16 x 16 grid of patches (224 px views, its position embeddings
-# resampled at the first step), in four runs each from the last one's export: make demo's start since 2026-12-07
-# (configs/kosmos_e.py:demo_grounded224_consensus, results/finer_grid/README.md)
-DEMO_START = "results/pretrain/grounding21200"
+# resampled at the first step), in four runs each from the last one's export: make demo's start on 2026-12-07
+GROUNDING21200_START = "results/pretrain/grounding21200"
 # the first 2,400 of those steps: make demo's start on 2026-12-06
 GROUNDING16400_START = "results/pretrain/grounding16400"
 # the same start 4,000 steps earlier: make demo's start on 2026-12-01 (results/demo/grounded10000)
