@@ -8,8 +8,10 @@ WORKERS ?= 2
 # XLA's CPU runtime allocates each step's large buffers afresh; glibc maps them with 4 KiB pages and
 # the kernel faults them in again every step (about a fifth of a training step's CPU time here).
 # Transparent huge pages for glibc's mapped chunks remove almost all of those faults: see the
-# `minor_page_faults_per_step` of benchmarks/model.py. An explicit GLIBC_TUNABLES wins.
-export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1
+# `minor_page_faults_per_step` of benchmarks/model.py. The other three keep freed memory mapped (large buffers
+# from the heap, no trimming), so a step reuses the last one's pages: make demo's fine-tune 7% faster a step
+# (benchmarks/malloc_settings.py, results/performance/malloc_settings/). An explicit GLIBC_TUNABLES wins.
+export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=17179869184:glibc.malloc.top_pad=268435456
 
 .PHONY: setup demo test test-slow test-parity bench plan clean
 
@@ -44,7 +46,7 @@ test-parity: setup
 # benchmarks/cnn_cpu.py measures its peer in PyTorch, which .venv leaves out: its docstring says how to run it;
 # timing.py is the others' helper and trace_summary.py reads a trace step_mfu.py --profile wrote
 bench: setup
-	for b in benchmarks/*.py; do case $$b in benchmarks/timing.py|benchmarks/cnn_cpu.py|benchmarks/trace_summary.py) continue;; esac; \
+	for b in benchmarks/*.py; do case $$b in benchmarks/timing.py|benchmarks/cnn_cpu.py|benchmarks/trace_summary.py|benchmarks/malloc_settings.py) continue;; esac; \
 		$(PY) $$b || exit 1; done
 
 # The TPU memory plan: the `paper` step compiled for v5e, v4 and v6e slices by libtpu, no TPU attached

@@ -1,0 +1,90 @@
+"""glibc's malloc settings against each other on make demo's fine-tune: seconds a step, page faults, system time.
+
+    .venv/bin/python benchmarks/malloc_settings.py [--data_root demo_out/datasets] [--steps 60] [--rounds 2] [--out RECORD.json]
+
+Each round trains `configs/kosmos_e.py:demo_grounded224_consensus` from make demo's start for `--steps` steps in a
+fresh process under each setting in turn (so that a neighbour's load falls on all alike), and reads the median
+seconds a step after the first `--skip` steps from the run's metrics.jsonl; the process's page faults and system
+time come from getrusage. The settings change where freed memory goes, never a number the step computes: the
+record holds each run's last loss, which must agree. `--data_root` is a folder holding make demo's dataset
+(`make demo` writes demo_out/datasets); the runs reuse it, so nothing is built.
+
+Ours: the Makefile's GLIBC_TUNABLES. Peer: huge pages alone (the Makefile's setting before 2026-12-07).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+from kosmos_jax.experiments.spec import DEMO_START  # noqa: E402
+
+HUGE_PAGES = "glibc.malloc.hugetlb=1"
+# mmap_threshold at glibc's 32 MiB ceiling keeps XLA's large buffers in the heap, and the trim threshold and top pad
+# keep freed heap memory mapped, so that each step reuses the pages the last one faulted in
+KEEP_FREED = HUGE_PAGES + (":glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=17179869184"
+                           ":glibc.malloc.top_pad=268435456")
+SETTINGS = {"keep_freed": KEEP_FREED, "huge_pages": HUGE_PAGES}
+
+
+def one_run(tunables: str, data_root: pathlib.Path, steps: int, skip: int) -> dict:
+    with tempfile.TemporaryDirectory() as workdir:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        done = subprocess.run(
+            [sys.executable, "-m", "kosmos_jax.train", "--config=configs/kosmos_e.py:demo_grounded224_consensus",
+             f"--workdir={workdir}/run", f"--config.init_from={DEMO_START}", f"--config.data.root={data_root}",
+             "--config.train.grasp_eval_at_end=False", f"--config.train.steps={steps}",
+             "--config.optimizer.warmup_steps=10", f"--config.train.eval_every={steps + 1}",
+             f"--config.train.checkpoint_every={steps + 1}"],
+            cwd=REPO, env={**os.environ, "GLIBC_TUNABLES": tunables}, capture_output=True, text=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if done.returncode:
+            raise SystemExit(f"training under {tunables!r} failed:\n{done.stderr[-3000:]}")
+        rows = [json.loads(line) for line in (pathlib.Path(workdir) / "run" / "metrics.jsonl").read_text().splitlines()]
+    timed = [row for row in rows if "step_s" in row]
+    return {"step_s": statistics.median(row["step_s"] for row in timed if row["step"] > skip),
+            "last_loss": timed[-1]["loss"], "minor_page_faults": after.ru_minflt - before.ru_minflt,
+            "system_s": round(after.ru_stime - before.ru_stime, 2), "user_s": round(after.ru_utime - before.ru_utime, 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data_root", default="demo_out/datasets")
+    parser.add_argument("--steps", type=int, default=60)
+    parser.add_argument("--skip", type=int, default=20, help="steps left out of the median (compile, warm-up)")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--out", help="write the record (JSON) here")
+    args = parser.parse_args()
+    data_root = (REPO / args.data_root).resolve()
+    if not any(data_root.glob("instruct_grasp/*/*/dataset_info.json")):
+        raise SystemExit(f"{data_root} holds no built dataset: run make demo first, or give --data_root")
+    if not 10 < args.skip + 10 <= args.steps:
+        raise SystemExit(f"--steps ({args.steps}) must exceed --skip ({args.skip}) by at least 10 (one logged row)")
+    runs = {name: [] for name in SETTINGS}
+    for round_number in range(args.rounds):
+        for name, tunables in SETTINGS.items():
+            runs[name].append(one_run(tunables, data_root, args.steps, args.skip))
+            print(f"round {round_number + 1}, {name}: {runs[name][-1]}", flush=True)
+    losses = {run["last_loss"] for named in runs.values() for run in named}
+    if len(losses) != 1:
+        raise SystemExit(f"the settings changed the training itself: last losses {sorted(losses)}")
+    ours, peer = (statistics.median(run["step_s"] for run in runs[name]) for name in SETTINGS)
+    print(f"keep_freed {ours:.4f} s a step, huge_pages {peer:.4f} s a step: {peer / ours:.3f}x")
+    record = {"settings": SETTINGS, "steps": args.steps, "skip": args.skip, "runs": runs,
+              "median_step_s": {"keep_freed": ours, "huge_pages": peer}, "speedup": peer / ours,
+              "data_root": str(args.data_root)}
+    if args.out:
+        pathlib.Path(args.out).write_text(json.dumps(record, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
