@@ -24,9 +24,7 @@ import subprocess
 import sys
 import tempfile
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-from kosmos_jax.experiments.spec import DEMO_START  # noqa: E402
+from kosmos_jax.experiments.spec import DEMO_START, REPO
 
 HUGE_PAGES = "glibc.malloc.hugetlb=1"
 # mmap_threshold at glibc's 32 MiB ceiling keeps XLA's large buffers in the heap, and the trim threshold and top pad
@@ -67,8 +65,9 @@ def main() -> None:
     data_root = (REPO / args.data_root).resolve()
     if not any(data_root.glob("instruct_grasp/*/*/dataset_info.json")):
         raise SystemExit(f"{data_root} holds no built dataset: run make demo first, or give --data_root")
-    if not 10 < args.skip + 10 <= args.steps:
-        raise SystemExit(f"--steps ({args.steps}) must exceed --skip ({args.skip}) by at least 10 (one logged row)")
+    if args.skip < 0 or args.steps < args.skip + 10:
+        raise SystemExit(f"--steps ({args.steps}) must exceed --skip ({args.skip}) by at least 10: the trainer logs "
+                         "a row every 10 steps")
     runs = {name: [] for name in SETTINGS}
     for round_number in range(args.rounds):
         for name, tunables in SETTINGS.items():
