@@ -103,7 +103,7 @@ def main() -> None:
         train[f"mfu_{key}"] = round(train[f"flops_{key}"] / train["step_seconds"] / 1e9 / peak, 3)
     report = {
         "device": str(jax.devices()[0].device_kind), "backend": jax.default_backend(), "size": args.size,
-        "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),  # `make bench` sets malloc.hugetlb=1
+        "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),  # `make bench` sets the Makefile's
         "matmul_float32": {"before": before, "after": after, "peak_gflops": round(peak, 1)},
         "train_step": train,
         "decoding": decoding_speed(cfg, args.decode_batch, args.prompt, args.new_tokens),

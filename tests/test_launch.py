@@ -4,6 +4,7 @@ Nothing here reaches a network: gcloud and srun are stand-ins on PATH that recor
 
 import os
 import pathlib
+import re
 import shutil
 import subprocess
 import sys
@@ -16,8 +17,10 @@ LAUNCH = REPO / "launch"
 SCRIPTS = ["local.sh", "slurm.sbatch", "slurm_array.sbatch", "tpu_vm.sh"]
 STEERING = {
     "DRY_RUN", "PROCESSES", "FAKE_DEVICES", "COORDINATOR_PORT", "SETUP", "LAUNCH_PYTHON", "XLA_FLAGS",
-    "CONFIG", "WORKDIR", "MODULE", "REPO", "AGGREGATE", "TPU_NAME", "ZONE", "PROJECT", "REMOTE_DIR",
+    "CONFIG", "WORKDIR", "MODULE", "REPO", "AGGREGATE", "TPU_NAME", "ZONE", "PROJECT", "REMOTE_DIR", "GLIBC_TUNABLES",
 }
+# local.sh's malloc settings when none is given: the Makefile's, so that a launched run allocates as make's does
+MAKEFILE_TUNABLES = re.search(r"^export GLIBC_TUNABLES \?= (\S+)$", (REPO / "Makefile").read_text(), re.M).group(1)
 
 
 @pytest.fixture
@@ -82,12 +85,14 @@ def test_executable(script):
 # -- local.sh --------------------------------------------------------------------------------------
 
 
-def test_local_dry_run_one_process():
-    result = run("local.sh", "demo", "configs/demo.py:tiny", "--config.seed=1", env={"DRY_RUN": "1", "FAKE_DEVICES": "8"})
+@pytest.mark.parametrize("given, used", [(None, MAKEFILE_TUNABLES), ("glibc.malloc.hugetlb=0", "glibc.malloc.hugetlb=0")])
+def test_local_dry_run_one_process(given, used):
+    env = {"DRY_RUN": "1", "FAKE_DEVICES": "8", **({"GLIBC_TUNABLES": given} if given else {})}
+    result = run("local.sh", "demo", "configs/demo.py:tiny", "--config.seed=1", env=env)
     assert result.returncode == 0, result.stderr
     assert result.stdout.splitlines() == [
         f"cd {REPO}",
-        "GLIBC_TUNABLES=glibc.malloc.hugetlb=1 XLA_FLAGS=--xla_force_host_platform_device_count=8 "
+        f"GLIBC_TUNABLES={used} XLA_FLAGS=--xla_force_host_platform_device_count=8 "
         ".venv/bin/python -m kosmos_jax.demo --config=configs/demo.py:tiny --config.seed=1",
     ]
 
@@ -100,7 +105,7 @@ def test_local_dry_run_two_processes():
     assert lines[0] == f"cd {REPO}" and len(lines) == 3
     for index, line in enumerate(lines[1:]):
         assert line == (
-            "GLIBC_TUNABLES=glibc.malloc.hugetlb=1 XLA_FLAGS=--xla_force_host_platform_device_count=2 "
+            f"GLIBC_TUNABLES={MAKEFILE_TUNABLES} XLA_FLAGS=--xla_force_host_platform_device_count=2 "
             f"KOSMOS_COORDINATOR=127.0.0.1:12345 KOSMOS_NUM_PROCESSES=2 KOSMOS_PROCESS_ID={index} "
             ".venv/bin/python -m kosmos_jax.train --config=configs/demo.py:tiny --workdir=runs/mp '--config.x=a b'"
         )
