@@ -1,6 +1,6 @@
 """Model benchmark, one run: float32 matmul peak, forward+backward MFU of the `small` config, decoding speed.
 
-    make bench                     # all benchmarks, with GLIBC_TUNABLES=glibc.malloc.hugetlb=1
+    make bench                     # all benchmarks, with the Makefile's GLIBC_TUNABLES
     GLIBC_TUNABLES=glibc.malloc.hugetlb=1 .venv/bin/python benchmarks/model.py [--batch 8 --length 128]
 
 Without the glibc tunable, the kernel faults in the step's fresh buffers 4 KiB at a time on every
