@@ -8,10 +8,13 @@ WORKERS ?= 2
 # XLA's CPU runtime allocates each step's large buffers afresh; glibc maps them with 4 KiB pages and
 # the kernel faults them in again every step (about a fifth of a training step's CPU time here).
 # Transparent huge pages for glibc's mapped chunks remove almost all of those faults: see the
-# `minor_page_faults_per_step` of benchmarks/model.py. The other three keep freed memory mapped (large buffers
-# from the heap, no trimming), so a step reuses the last one's pages: make demo's fine-tune 7% faster a step
-# (benchmarks/malloc_settings.py, results/performance/malloc_settings/). An explicit GLIBC_TUNABLES wins.
-export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=17179869184:glibc.malloc.top_pad=268435456
+# `minor_page_faults_per_step` of benchmarks/model.py. An explicit GLIBC_TUNABLES wins.
+export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1
+# make demo also keeps freed memory mapped (large buffers from the heap, no trimming), so that a step reuses the
+# last one's pages: its fine-tune 1.07x a step, where GR-ConvNet's step read 0.91x (benchmarks/malloc_settings.py,
+# results/performance/malloc_settings/), hence for make demo alone. An explicit GLIBC_TUNABLES wins here too.
+KEEP_FREED := glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=17179869184:glibc.malloc.top_pad=268435456
+DEMO_TUNABLES := $(if $(filter file,$(origin GLIBC_TUNABLES)),$(KEEP_FREED),$(GLIBC_TUNABLES))
 
 .PHONY: setup demo test test-slow test-parity bench plan clean
 
@@ -30,7 +33,7 @@ $(TPU_STAMP): $(STAMP)
 	@touch $(TPU_STAMP)
 
 demo: setup
-	$(PY) -m kosmos_jax.demo --config=configs/demo.py
+	GLIBC_TUNABLES=$(DEMO_TUNABLES) $(PY) -m kosmos_jax.demo --config=configs/demo.py
 
 test: $(TPU_STAMP)
 	$(PY) -m pytest -n $(WORKERS) --dist loadgroup -q

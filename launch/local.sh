@@ -54,8 +54,8 @@ positive PROCESSES "$processes"
 dry_run=${DRY_RUN:-0}
 python=${LAUNCH_PYTHON:-.venv/bin/python}
 
-# huge pages for large CPU buffers, freed memory kept mapped: see the Makefile
-export GLIBC_TUNABLES="${GLIBC_TUNABLES:-glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=17179869184:glibc.malloc.top_pad=268435456}"
+# huge pages for large CPU buffers: see the Makefile
+export GLIBC_TUNABLES="${GLIBC_TUNABLES:-glibc.malloc.hugetlb=1}"
 launch_env=(GLIBC_TUNABLES)
 if [ -n "${FAKE_DEVICES:-}" ]; then
   positive FAKE_DEVICES "$FAKE_DEVICES"
