@@ -59,4 +59,3 @@ def test_the_zoomed_mosaics_are_paired_by_their_zoomed_answers():
                     "only_candidate": 1, "only_baseline": 1, "mcnemar_z": 0.0}
     with pytest.raises(RunError, match="score the run with evaluate --mosaic_zoom"):
         paired_runs.instruction_results(rows([True, False]), zoomed=True)
-
