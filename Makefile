@@ -13,7 +13,7 @@ export GLIBC_TUNABLES ?= glibc.malloc.hugetlb=1
 # make demo also keeps freed memory mapped (buffers up to 32 MiB, glibc's ceiling, from the heap; no trimming), so
 # that a step reuses the last one's pages: its fine-tune 1.07x a step, where GR-ConvNet's step read 0.91x
 # (benchmarks/malloc_settings.py, which reads both settings from here; results/performance/malloc_settings/),
-# hence for make demo alone. An explicit GLIBC_TUNABLES wins here too.
+# hence for make demo alone (the CNN figure is noisy: see there). An explicit GLIBC_TUNABLES wins here too.
 KEEP_FREED := glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=17179869184:glibc.malloc.top_pad=268435456
 DEMO_TUNABLES := $(if $(filter file,$(origin GLIBC_TUNABLES)),$(KEEP_FREED),$(GLIBC_TUNABLES))
 
