@@ -68,6 +68,9 @@ def data_config(**changes) -> ml_collections.ConfigDict:
     # kinds: the stream's instruction kinds as data.build.kinds takes them ("non,multi"); "" = the build's;
     # examples > 0: keep that many of a chunk's examples, drawn at random (more scenes for the same steps)
     data.stream = ml_collections.ConfigDict(dict(photos=0, seed=10_000, kinds="", examples=0))
+    # "non=3": each training example of that kind drawn 3 times an epoch, the other kinds' once (the mix the
+    # trainer sees, from the same build); "" = every example once. Not with the scene stream.
+    data.kind_repeats = ""
     data.build = ml_collections.ConfigDict(dict(
         protocol="honest", split="image", fold=0, folds=5, annotations=placeholder(str), augmentations=4,
         recipe="random", kinds="non", seed=0, fold_seed=placeholder(int), train_crop=placeholder(str),

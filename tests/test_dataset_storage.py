@@ -15,6 +15,7 @@ from kosmos_jax.instruct.sample import View
 from kosmos_jax.dataset import pipeline
 from kosmos_jax.dataset.images import digest, png_bytes
 from kosmos_jax.dataset.samples import MosaicCounts, split_samples
+from kosmos_jax.train import batches as batches_lib
 from kosmos_jax.dataset.tfds_builders import (build_cornell, dataset_folder, make_config, open_cornell, open_splits,
                                               write_instruct_grasp)
 
@@ -273,6 +274,56 @@ def test_pipeline_errors(written, tmp_path):
         open_splits(tmp_path)
     with pytest.raises(ValueError, match="max_answers=1"):
         next(iter(pipeline.make_dataset(open_splits(path)["test"], 5, shuffle=False, max_answers=1)))
+
+
+@pytest.fixture(scope="module")
+def two_kinds(tmp_path_factory):
+    """A train split of 12 examples: 0, 3, 6 and 9 of kind "non", the others "multi-name"."""
+    out = tmp_path_factory.mktemp("two_kinds")
+    records = [{**_record(i), "kind": "non" if i % 3 == 0 else "multi-name"} for i in range(12)]
+    path = write_instruct_grasp({"train": records, "test": [_record(100)]}, out, _config(kinds=("non", "multi-name")))
+    return open_splits(path)["train"]
+
+
+def test_kind_repeats_draw_each_example_of_a_kind_that_many_times_an_epoch(two_kinds):
+    order = batches_lib.repeated_order(two_kinds, {"non": 3})
+    assert sorted(order.tolist()) == sorted([0, 0, 0, 3, 3, 3, 6, 6, 6, 9, 9, 9] + [1, 2, 4, 5, 7, 8, 10, 11])
+    epoch = sum((_ids(b) for b in pipeline.make_dataset(two_kinds, 1, seed=4, order=order)), [])
+    assert sorted(epoch) == sorted(order.tolist()) and epoch != sorted(epoch)  # every draw, shuffled
+    # two processes share the epoch's draws without overlap
+    shards = [sum((_ids(b) for b in pipeline.make_dataset(two_kinds, 1, seed=4, order=order, process_index=i,
+                                                          process_count=2)), []) for i in range(2)]
+    assert sorted(shards[0] + shards[1]) == sorted(order.tolist())
+    assert batches_lib.repeated_order(two_kinds, {}) is None
+    unweighted = sum((_ids(b) for b in pipeline.make_dataset(two_kinds, 1, seed=4)), [])
+    assert unweighted == sum((_ids(b) for b in pipeline.make_dataset(two_kinds, 1, seed=4, order=None)), [])
+
+
+def test_kind_repeats_resume_exactly(two_kinds):
+    order = batches_lib.repeated_order(two_kinds, {"multi-name": 2})
+    make = lambda: iter(pipeline.make_dataset(two_kinds, 5, seed=7, num_epochs=None, order=order))
+    iterator = make()
+    for _ in range(3):
+        next(iterator)
+    state = iterator.get_state()
+    expected = [_ids(next(iterator)) for _ in range(4)]  # 7 batches of 5 cross the 20-draw epoch
+    fresh = make()
+    fresh.set_state(state)
+    assert [_ids(next(fresh)) for _ in range(4)] == expected
+
+
+@pytest.mark.parametrize("text, error", [("non", "not KIND=N"), ("non=0", "not KIND=N"), ("non=x", "not KIND=N"),
+                                         ("=3", "not KIND=N"), ("non=2,non=3", "names 'non' twice")])
+def test_kind_repeats_refuse_what_is_not_kind_equals_count(text, error):
+    with pytest.raises(ValueError, match=error):
+        batches_lib.kind_repeats(text)
+
+
+def test_kind_repeats_read_and_refuse_a_kind_the_split_lacks(two_kinds):
+    assert batches_lib.kind_repeats("") == {} and batches_lib.kind_repeats(None) == {}
+    assert batches_lib.kind_repeats(" non=3 , multi-name=1") == {"non": 3, "multi-name": 1}
+    with pytest.raises(ValueError, match="'multi-colour', which the training split does not hold.*multi-name, non"):
+        batches_lib.repeated_order(two_kinds, batches_lib.kind_repeats("multi-colour=2"))
 
 
 def test_shards_keep_generation_order(tmp_path, monkeypatch):

@@ -124,6 +124,15 @@ def test_stream_seeds_must_lie_above_the_test_scenes_seed():
     assert trainer.stream_settings(data) is None
 
 
+def test_kind_repeats_is_refused_beside_the_stream():
+    data = ml_collections.ConfigDict(dict(source="synthetic", synthetic_seed=1000, kind_repeats="non=3",
+                                          stream=dict(photos=8, seed=1001)))
+    with pytest.raises(ValueError, match="kind_repeats weighs the built dataset's examples"):
+        trainer.stream_settings(data)
+    data.stream.photos = 0
+    assert trainer.stream_settings(data) is None
+
+
 def test_the_stream_may_ask_for_other_kinds_than_the_build():
     data = ml_collections.ConfigDict(dict(source="synthetic", synthetic_seed=1000,
                                           stream=dict(photos=8, seed=1001, kinds="")))

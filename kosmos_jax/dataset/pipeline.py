@@ -61,18 +61,24 @@ def make_dataset(
     even_shards: bool = True,
     max_answers: int = 64,
     read_options: grain.ReadOptions | None = None,
+    order: np.ndarray | None = None,
 ) -> grain.IterDataset:
     """The batched dataset of one split (a `StoredSplit`: `.examples` and `.images`); `iter()` it,
     and use get_state / set_state to resume (the state is the examples' position only: the join is
-    a pure function of the example)."""
+    a pure function of the example). `order`: the example indices an epoch draws from, repeats
+    allowed (None: each example once)."""
     if batch_size < 1:
         raise ValueError(f"batch_size must be positive, got {batch_size}")
     if not 0 <= process_index < process_count:
         raise ValueError(f"process_index {process_index} outside 0..{process_count - 1}")
-    if len(split.examples) < process_count:
-        raise ValueError(f"a split of {len(split.examples)} examples cannot be shared by {process_count} processes")
-    images = split.images
-    dataset = grain.MapDataset.source(split.examples).map_with_index(lambda index, record: (index, record))
+    drawn = len(split.examples) if order is None else len(order)
+    if drawn < process_count:
+        raise ValueError(f"a split of {drawn} examples cannot be shared by {process_count} processes")
+    images, examples = split.images, split.examples
+    if order is None:
+        dataset = grain.MapDataset.source(examples).map_with_index(lambda index, record: (index, record))
+    else:
+        dataset = grain.MapDataset.source(np.asarray(order, np.int64)).map(lambda index: (int(index), examples[int(index)]))
     if shuffle:
         dataset = dataset.shuffle(seed=seed)
     if even_shards:

@@ -64,14 +64,45 @@ def prepare(data_config) -> Dataset:
     return open_dataset(stats["dataset_dir"])
 
 
-def train_batches(split, global_batch: int, seed: int, process_index: int, process_count: int):
-    """Endless batches of this process's rows of each global batch (an iterator with get_state/set_state)."""
+def kind_repeats(text: str) -> dict[str, int]:
+    """config.data.kind_repeats, "non=3[,multi-name=2...]" -> {kind: times an epoch draws each of its
+    examples}; "" -> {} (each example once)."""
+    repeats = {}
+    for item in filter(None, (part.strip() for part in str(text or "").split(","))):
+        kind, equals, times = item.partition("=")
+        if not equals or not kind.strip() or not times.strip().isdigit() or int(times) < 1:
+            raise ValueError(f"config.data.kind_repeats: {item!r} is not KIND=N with N a whole number >= 1 "
+                             f"(e.g. non=3)")
+        if kind.strip() in repeats:
+            raise ValueError(f"config.data.kind_repeats names {kind.strip()!r} twice")
+        repeats[kind.strip()] = int(times)
+    return repeats
+
+
+def repeated_order(split, repeats: dict[str, int]) -> np.ndarray | None:
+    """The example indices an epoch of `split` draws from: each example of a kind in `repeats` that many
+    times, the others once (None when `repeats` is empty). A kind the split does not hold is refused."""
+    if not repeats:
+        return None
+    kinds = [bytes(record["kind"]).decode() for record in split.examples]
+    missing = sorted(set(repeats) - set(kinds))
+    if missing:
+        raise ValueError(f"config.data.kind_repeats names {', '.join(map(repr, missing))}, which the training split "
+                         f"does not hold (its kinds: {', '.join(sorted(set(kinds)))})")
+    return np.repeat(np.arange(len(kinds)), [repeats.get(kind, 1) for kind in kinds])
+
+
+def train_batches(split, global_batch: int, seed: int, process_index: int, process_count: int,
+                  repeats: dict[str, int] | None = None):
+    """Endless batches of this process's rows of each global batch (an iterator with get_state/set_state);
+    `repeats` ({kind: N}, kind_repeats) draws each example of those kinds N times an epoch."""
     if global_batch % process_count:
         raise ValueError(f"train.batch_size={global_batch} is not divisible by the {process_count} processes")
     if len(split) < global_batch:
         raise ValueError(f"the training split has {len(split)} examples, fewer than one batch of {global_batch}")
     dataset = pipeline.make_dataset(split, global_batch // process_count, seed=seed, process_index=process_index,
-                                    process_count=process_count, num_epochs=None)
+                                    process_count=process_count, num_epochs=None,
+                                    order=repeated_order(split, repeats or {}))
     return iter(dataset)
 
 

@@ -207,10 +207,14 @@ def stream_settings(data_config) -> dict | None:
     the fly, else None. "kinds" (resolved, e.g. ["non", "multi-name", ...]) is there only when
     config.data.stream.kinds gives the stream other instruction kinds than the build's, "examples" only when
     config.data.stream.examples caps a chunk's examples. The stream's seeds must all lie above the
-    built dataset's scenes' seed, so that no test photo is ever a training one."""
+    built dataset's scenes' seed, so that no test photo is ever a training one; config.data.kind_repeats,
+    which weighs the built dataset's examples, is refused beside it."""
     stream = data_config.get("stream")
     if not stream or not stream.get("photos"):
         return None
+    if data_config.get("kind_repeats"):
+        raise ValueError("config.data.kind_repeats weighs the built dataset's examples, and the scene stream "
+                         "(config.data.stream.photos > 0) makes its own: give one of them")
     if data_config.source == "synthetic" and stream.seed <= data_config.synthetic_seed:
         raise ValueError(f"config.data.stream.seed={stream.seed} must exceed config.data.synthetic_seed="
                          f"{data_config.synthetic_seed}: the stream's chunks take seeds seed, seed + 1, ..., and the "
@@ -261,7 +265,8 @@ def kosmos_task(config, mesh, tx, schedule) -> Task:
         describe = batches.describe
     else:
         batches = batches_lib.train_batches(splits["train"], config.train.batch_size, config.train.seed,
-                                         jax.process_index(), jax.process_count())
+                                         jax.process_index(), jax.process_count(),
+                                         repeats=batches_lib.kind_repeats(config.data.get("kind_repeats", "")))
         describe = lambda host: batches_lib.describe_examples(splits["train"], host["example_index"])
     auxiliary = AuxiliaryLosses.from_config(config.train)
     check_label_source(auxiliary, stream)
