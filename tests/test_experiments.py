@@ -831,6 +831,23 @@ def test_command_carries_records_in_and_out(tmp_path):
     assert missing.returncode == 1 and "--records_from folder" in missing.stderr
 
 
+def test_a_stopped_sweep_still_carries_out_the_folds_it_finished(tmp_path, monkeypatch, capsys):
+    from kosmos_jax.experiments import __main__ as command_module
+
+    config_file = tmp_path / "unit.py"
+    config_file.write_text(BASELINE_EXPERIMENT_FILE)
+    stopping = FakeTrainer(stop_at=("honest", "object", 0))  # b1's image fold finishes, its object fold stops
+    real = runner.run_experiment
+    monkeypatch.setattr(runner, "run_experiment", lambda config, root, command: real(
+        config, root, train=stopping, evaluate=fake_evaluate, command=command, say=lambda line: None))
+    code = command_module.main([f"--config={config_file}", f"--workdir={tmp_path / 'work'}",
+                                f"--records_to={tmp_path / 'kept'}"])
+    out, err = capsys.readouterr()
+    assert code == 3 and "stopped: b1 honest-object fold 0: training stopped at step 1" in err
+    assert f"1 fold records copied from {tmp_path / 'work'} into {tmp_path / 'kept'}" in out
+    assert [p.parent.name for p in (tmp_path / "kept").rglob(records.FOLD_FILE)] == ["honest-image-fold0"]
+
+
 def test_slurm_array_aggregate_step():
     env = {"PATH": os.environ["PATH"], "DRY_RUN": "1", "AGGREGATE": "1"}
     done = subprocess.run(["bash", str(REPO / "launch" / "slurm_array.sbatch"), "configs/experiments/table1.py:paper",

@@ -9,7 +9,8 @@ checkpoint), then writes WORKDIR/results.json and table.md (and data_size.png/js
 --aggregate_only only writes those from the folds recorded so far (after a SLURM array's tasks);
 --check_only builds every arm's config and model shapes and trains nothing. --records_from=DIR first
 copies the fold records kept in DIR (results/<experiment>/folds) into WORKDIR, so their folds are
-skipped and aggregated; --records_to=DIR copies WORKDIR's records there at the end (carried.py).
+skipped and aggregated; --records_to=DIR copies WORKDIR's records there at the end (carried.py), also when
+the sweep is stopped (the folds finished before the stop are kept).
 Exit status: 0 done,
 1 a fold failed or the config is wrong, 3 stopped by SIGTERM (the same command resumes).
 """
@@ -68,21 +69,24 @@ def experiments_command(options, command: str) -> int:
         if options.records_from:
             brought = carried.bring_in(config, options.records_from, options.workdir)
             print(f"{len(brought)} fold records copied from {options.records_from} into {options.workdir}")
+        summary, stopped = None, None
         if options.aggregate_only:
             results = write_results(config, options.workdir, command)
             print(f"aggregated {sum(len(r['folds']) for r in results['rows'] if r['kind'] == 'trained')} folds into "
                   f"{options.workdir}/results.json and table.md ({len(results['missing'])} not run yet)")
-            summary = None
         else:
-            summary = run_experiment(config, options.workdir, command=command)
+            try:
+                summary = run_experiment(config, options.workdir, command=command)
+            except SweepStopped as error:  # the folds finished before the stop are still carried out
+                stopped = error
         if options.records_to:
             sent = carried.send_out(config, options.workdir, options.records_to)
             print(f"{len(sent)} fold records copied from {options.workdir} into {options.records_to}")
     except ExperimentError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    except SweepStopped as error:
-        print(f"stopped: {error}", file=sys.stderr)
+    if stopped is not None:
+        print(f"stopped: {stopped}", file=sys.stderr)
         return 3
     if summary is None:
         return 0
