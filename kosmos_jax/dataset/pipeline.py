@@ -75,10 +75,10 @@ def make_dataset(
     if drawn < process_count:
         raise ValueError(f"a split of {drawn} examples cannot be shared by {process_count} processes")
     images, examples = split.images, split.examples
-    if order is None:
-        dataset = grain.MapDataset.source(examples).map_with_index(lambda index, record: (index, record))
-    else:
-        dataset = grain.MapDataset.source(np.asarray(order, np.int64)).map(lambda index: (int(index), examples[int(index)]))
+    # a source of example indices: None draws each once, in the order (and with the states) a source of the
+    # examples themselves gave
+    indices = np.arange(len(examples)) if order is None else np.asarray(order, np.int64)
+    dataset = grain.MapDataset.source(indices).map(lambda index: (int(index), examples[int(index)]))
     if shuffle:
         dataset = dataset.shuffle(seed=seed)
     if even_shards:
