@@ -41,6 +41,12 @@ def instruction_results(rows: list[dict], zoomed: bool = False) -> dict[int, tup
     return results
 
 
+def mcnemar_z(only_candidate: int, only_baseline: int) -> float:
+    """McNemar's z of two answer sets on the same instructions, from their discordant pairs (0 when none)."""
+    discordant = only_candidate + only_baseline
+    return round((only_candidate - only_baseline) / math.sqrt(discordant), 2) if discordant else 0.0
+
+
 def paired(baseline: dict, candidate: dict) -> list[dict]:
     if baseline.keys() != candidate.keys() or any(baseline[k][:3] != candidate[k][:3] for k in baseline):
         raise RunError("the two runs did not answer the same instructions (another folder, kinds or tokenizer)")
@@ -49,11 +55,10 @@ def paired(baseline: dict, candidate: dict) -> list[dict]:
         keys = [k for k, value in baseline.items() if value[1] == scene]
         only_candidate = sum(candidate[k][3] and not baseline[k][3] for k in keys)
         only_baseline = sum(baseline[k][3] and not candidate[k][3] for k in keys)
-        discordant = only_candidate + only_baseline
         out.append({"scene": scene, "instructions": len(keys), "baseline_right": sum(baseline[k][3] for k in keys),
                     "candidate_right": sum(candidate[k][3] for k in keys), "only_candidate": only_candidate,
                     "only_baseline": only_baseline,
-                    "mcnemar_z": round((only_candidate - only_baseline) / math.sqrt(discordant), 2) if discordant else 0.0})
+                    "mcnemar_z": mcnemar_z(only_candidate, only_baseline)})
     return out
 
 

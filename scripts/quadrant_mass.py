@@ -17,6 +17,7 @@ photo's quadrant, both zoomed accuracies, the paired counts and McNemar's z, and
 
 import argparse
 import json
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -25,10 +26,11 @@ import numpy as np
 from kosmos_jax.models import value_decoding
 from kosmos_jax.models.mesh import make_mesh
 from kosmos_jax.models.value_embeddings import value_tokens
-from kosmos_jax.scoring import tally
+from kosmos_jax.scoring import tally, zoom
 from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.workdir.run import open_run
+from paired_runs import mcnemar_z  # scripts/, this script's folder
 
 
 class HalfMass(value_decoding.LocalMean):
@@ -61,17 +63,15 @@ class HalfMass(value_decoding.LocalMean):
         return self._angle(logits, allowed, self._coordinate(logits, kept, token))
 
 
-def quadrants(points: np.ndarray, half: int) -> np.ndarray:
-    """int [G] 0..3 the quadrant of each (x, y), -1 where not finite."""
-    points = np.asarray(points, np.float64)
-    index = (points[:, 0] >= half).astype(int) + 2 * (points[:, 1] >= half).astype(int)
-    return np.where(np.isfinite(points).all(-1), index, -1)
+def share(hits: np.ndarray) -> float:
+    """Percent of `hits` true, to two decimals (rounded once)."""
+    return round(100.0 * float(np.mean(hits)), 2)
 
 
-def mcnemar(a: np.ndarray, b: np.ndarray) -> dict:
-    only_b, only_a = int((b & ~a).sum()), int((a & ~b).sum())
-    z = (only_b - only_a) / (only_b + only_a) ** 0.5 if only_b + only_a else 0.0
-    return {"right_only_half_mass": only_b, "right_only_greedy": only_a, "z": round(z, 2)}
+def paired(greedy: np.ndarray, half_mass: np.ndarray) -> dict:
+    only_half_mass, only_greedy = int((half_mass & ~greedy).sum()), int((greedy & ~half_mass).sum())
+    return {"right_only_half_mass": only_half_mass, "right_only_greedy": only_greedy,
+            "z": mcnemar_z(only_half_mass, only_greedy)}
 
 
 def main() -> None:
@@ -84,36 +84,34 @@ def main() -> None:
     records = cornell_examples(args.cornell, run.tokenizer, run.format_config, ("non", "multi")).records
     windows = value_decoding.configured_windows(run.config)
     evaluation = GraspEvaluation(run.model_config, mesh, records, run.tokenizer, run.format_config, "honest", **windows)
-    mosaics = np.array([g for g, i in enumerate(evaluation.instructions) if i.scene == "multi"])
-    size = records[min(evaluation.instructions[mosaics[0]].examples.values())]["image"].shape[0]
-    named = quadrants(np.stack([evaluation.instructions[g].answers[:, :2].mean(0) for g in mosaics]), size // 2)
+    mosaic = np.array([instruction.scene == "multi" for instruction in evaluation.instructions])
+    size = records[0]["image"].shape[0]  # every view of a folder's split has one size
+    named = zoom.quadrant_corners(np.stack([i.answers[:, :2].mean(0) for i in evaluation.instructions]), size)
     run_decoder = evaluation.decoder
     mass_decoder = type(run_decoder)(run.model_config, mesh, HalfMass(run.tokenizer.piece_texts(),
                                                                       windows["value_window"],
                                                                       windows["angle_window"], size // 2))
-    figures = {"workdir": args.workdir, "step": step, "cornell": args.cornell, "mosaic_instructions": len(mosaics)}
-    hits = {}
+    figures = {"workdir": args.workdir, "step": step, "cornell": args.cornell, "mosaic_instructions": int(mosaic.sum())}
+    hits, by_kind = {}, {}
     for reading, decoder in (("greedy", run_decoder), ("half_mass", mass_decoder)):
         evaluation.decoder = decoder
         first = evaluation.grasps(evaluation.answers(params))
         evaluation.decoder = run_decoder  # the zoomed view is a single photo: read the run's way
-        zoomed, _ = evaluation.zoomed_grasps(params, first)
-        one_pass = tally.successes(evaluation.instructions, first, "honest")[mosaics]
-        with_zoom = tally.successes(evaluation.instructions, zoomed, "honest")[mosaics]
-        single = np.setdiff1d(np.arange(len(evaluation.instructions)), mosaics)
-        single_hits = tally.successes(evaluation.instructions, first, "honest")[single]
-        hits[reading] = (one_pass, with_zoom)
-        figures[reading] = {"one_pass": round(float(one_pass.mean() * 100), 2),
-                            "zoomed": round(float(with_zoom.mean() * 100), 2),
-                            "named_quadrant": round(float((quadrants(first[mosaics, :2], size // 2) == named).mean() * 100), 2),
-                            "single_photos": round(float(single_hits.mean() * 100), 2)}
-        by_kind = figures.setdefault("by_kind", {})
-        for g, a, b in zip(mosaics, one_pass, with_zoom):
+        one_pass = tally.successes(evaluation.instructions, first, evaluation.protocol)
+        _, with_zoom, _ = evaluation.zoom_figures(params, first, one_pass)
+        in_named = (zoom.quadrant_corners(first[:, :2], size) == named).all(axis=1)
+        hits[reading] = (one_pass[mosaic], with_zoom[mosaic])
+        figures[reading] = {"one_pass": share(one_pass[mosaic]),
+                            "zoomed": share(with_zoom[mosaic]),
+                            "named_quadrant": share(in_named[mosaic]),
+                            "single_photos": share(one_pass[~mosaic])}
+        for g in np.flatnonzero(mosaic):
             counts = by_kind.setdefault(evaluation.instructions[g].kind, {}).setdefault(reading, [0, 0, 0])
-            counts[0], counts[1], counts[2] = counts[0] + 1, counts[1] + int(a), counts[2] + int(b)
-        print(json.dumps({reading: figures[reading]}), flush=True, file=__import__("sys").stderr)
-    figures["paired_one_pass"] = mcnemar(hits["greedy"][0], hits["half_mass"][0])
-    figures["paired_zoomed"] = mcnemar(hits["greedy"][1], hits["half_mass"][1])
+            counts[0], counts[1], counts[2] = counts[0] + 1, counts[1] + int(one_pass[g]), counts[2] + int(with_zoom[g])
+        print(json.dumps({reading: figures[reading]}), flush=True, file=sys.stderr)
+    figures["by_kind"] = by_kind
+    figures["paired_one_pass"] = paired(hits["greedy"][0], hits["half_mass"][0])
+    figures["paired_zoomed"] = paired(hits["greedy"][1], hits["half_mass"][1])
     print(json.dumps(figures))
 
 

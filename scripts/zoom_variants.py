@@ -28,6 +28,7 @@ from kosmos_jax.scoring.cornell_examples import cornell_examples
 from kosmos_jax.scoring.model_scores import GraspEvaluation
 from kosmos_jax.workdir.run import open_run
 from kosmos_jax.workdir.sizes import run_grasp_size
+from paired_runs import mcnemar_z  # scripts/, this script's folder
 
 ENLARGEMENTS = {"cubic": cv2.INTER_CUBIC, "linear": cv2.INTER_LINEAR}
 
@@ -86,9 +87,7 @@ def main() -> None:
                "multi_one_pass": round(float(a.mean() * 100), 4), "multi_zoomed": round(float(b.mean() * 100), 4),
                "mosaic_instructions": len(multi), "right_only_zoomed": int((b & ~a).sum()),
                "right_only_one_pass": int((a & ~b).sum()), "by_kind": by_kind}
-    discordant = figures["right_only_zoomed"] + figures["right_only_one_pass"]
-    figures["mcnemar_z"] = round((figures["right_only_zoomed"] - figures["right_only_one_pass"]) / discordant ** 0.5, 2) \
-        if discordant else 0.0
+    figures["mcnemar_z"] = mcnemar_z(figures["right_only_zoomed"], figures["right_only_one_pass"])
     print(json.dumps(figures))
 
 
