@@ -40,20 +40,35 @@ from kosmos_jax.workdir.run import open_run
 def export_pretrained(workdir, folder, step: int | None = None, max_shard_bytes: int | None = None) -> int:
     """Write checkpoint `step` (None: the newest) of the run in `workdir` to `folder`, which must be
     new or empty (an older export's shards would mix with these); returns the step."""
+    check_new_folder(folder)
+    run = open_run(workdir)
+    step, params = run.params(step, one_device_mesh())
+    write_exported(run, step, params, folder, max_shard_bytes)
+    return step
+
+
+def check_new_folder(folder) -> None:
     folder = pathlib.Path(folder)
     if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
         raise FileExistsError(f"{folder} exists and is not an empty folder; export to a new one")
-    run = open_run(workdir)
-    step, params = run.params(step, make_mesh(1, 1, 1, devices=jax.devices()[:1]))
+
+
+def one_device_mesh():
+    return make_mesh(1, 1, 1, devices=jax.devices()[:1])
+
+
+def write_exported(run, step: int, params, folder, max_shard_bytes: int | None = None, **described) -> None:
+    """`params` (laid out as the run's model's) written to `folder` with the run's tokenizer and a kosmos_e.json
+    that describes `run` at `step`, plus the `described` fields."""
+    folder = pathlib.Path(folder)
     graphdef, _, rest = split_model(abstract_model(run.model_config))
     weights.save_pretrained(nnx.merge(graphdef, params, fixed_streams(rest)), folder, max_shard_bytes,
                             extensions=True)
     shutil.copyfile(run.workdir / TOKENIZER_FILE, folder / TOKENIZER_FILE)
-    write_description(folder, folder_description(
+    write_description(folder, dict(folder_description(
         dataclasses.asdict(run.format_config), run.tokenizer.scheme, run.tokenizer.numbers, run.protocol,
         run_grasp_size(run), step, run.workdir.resolve(), **configured_windows(run.config),
-        started_from=start_chain(run.description.get("init"))))
-    return step
+        started_from=start_chain(run.description.get("init"))), **described))
 
 
 def define_flags(flag_values: flags.FlagValues) -> None:
