@@ -7,8 +7,11 @@ import copy
 import json
 import os
 import pathlib
+import signal
 import subprocess
 import sys
+import threading
+import time
 
 import matplotlib.image
 import numpy as np
@@ -846,6 +849,51 @@ def test_a_stopped_sweep_still_carries_out_the_folds_it_finished(tmp_path, monke
     assert code == 3 and "stopped: b1 honest-object fold 0: training stopped at step 1" in err
     assert f"1 fold records copied from {tmp_path / 'work'} into {tmp_path / 'kept'}" in out
     assert [p.parent.name for p in (tmp_path / "kept").rglob(records.FOLD_FILE)] == ["honest-image-fold0"]
+
+
+class SigtermBeforeTraining(FakeTrainer):
+    """A SIGTERM that arrives before the trainer puts in its own handler (e.g. while the fold's dataset is built)."""
+
+    def __init__(self, at):
+        super().__init__()
+        self.at = at
+
+    def __call__(self, config, workdir):
+        if (config.data.protocol, config.data.scheme, config.data.fold) == self.at:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1)  # the handler runs in this thread at once; reaching the next line is a failure
+            raise AssertionError("the SIGTERM did not stop the sweep")
+        return super().__call__(config, workdir)
+
+
+def test_a_sigterm_outside_a_training_stops_the_sweep_and_the_finished_folds_are_carried_out(tmp_path, monkeypatch,
+                                                                                             capsys):
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers can only be set in the main thread")
+    from kosmos_jax.experiments import __main__ as command_module
+
+    config_file = tmp_path / "unit.py"
+    config_file.write_text(BASELINE_EXPERIMENT_FILE)
+    stopping = SigtermBeforeTraining(at=("honest", "object", 0))  # b1's image fold finishes, its object fold is hit
+    real = runner.run_experiment
+    monkeypatch.setattr(runner, "run_experiment", lambda config, root, command: real(
+        config, root, train=stopping, evaluate=fake_evaluate, command=command, say=lambda line: None))
+
+    def ignored(signum, frame):  # in place of the default action, so that a sweep that misses the signal fails here
+        pass
+
+    original = signal.signal(signal.SIGTERM, ignored)
+    try:
+        code = command_module.main([f"--config={config_file}", f"--workdir={tmp_path / 'work'}",
+                                    f"--records_to={tmp_path / 'kept'}"])
+        after = signal.getsignal(signal.SIGTERM)
+    finally:
+        signal.signal(signal.SIGTERM, original)
+    out, err = capsys.readouterr()
+    assert code == 3 and "stopped: SIGTERM outside a training" in err
+    assert f"1 fold records copied from {tmp_path / 'work'} into {tmp_path / 'kept'}" in out
+    assert [p.parent.name for p in (tmp_path / "kept").rglob(records.FOLD_FILE)] == ["honest-image-fold0"]
+    assert after is ignored
 
 
 def test_slurm_array_aggregate_step():
