@@ -2,6 +2,9 @@
 
     python scripts/paired_runs.py --baseline=demo_out/run --candidate=runs/ft/px224_s0 \
         [--scored=cornell-synthetic-300-seed7] [--step=N] [--zoomed]
+    python scripts/paired_runs.py --baseline=demo_out/run --candidate=runs/evaluate/soup/cornell-synthetic-300-seed7/answers.jsonl
+
+Either side may be an answers.jsonl file itself (what `evaluate --pretrained=FOLDER --cornell=...` writes under its --out).
 
 Reads the answers.jsonl that `python -m kosmos_jax.evaluate --cornell=...` wrote for each run (the same folder and
 kinds: the pairs are checked example by example) and prints one JSON line per scene (single photos, mosaics): the
@@ -62,6 +65,13 @@ def paired(baseline: dict, candidate: dict) -> list[dict]:
     return out
 
 
+def answers_of(path: pathlib.Path, step: int | None, scored: str) -> list[dict]:
+    """The answer rows of an answers.jsonl file, or of a run's workdir at `step` (None: its newest) on `scored`."""
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line]
+    return read_answers(path, chosen_step(path, step), scored)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--baseline", required=True)
@@ -71,8 +81,7 @@ def main() -> None:
     parser.add_argument("--zoomed", action="store_true", help="also a line for the mosaics as the zoom answered them")
     args = parser.parse_args()
     try:
-        answers = [read_answers(pathlib.Path(workdir), chosen_step(pathlib.Path(workdir), args.step), args.scored)
-                   for workdir in (args.baseline, args.candidate)]
+        answers = [answers_of(pathlib.Path(side), args.step, args.scored) for side in (args.baseline, args.candidate)]
         lines = paired(*(instruction_results(rows) for rows in answers))
         if args.zoomed:
             lines += paired(*(instruction_results(rows, zoomed=True) for rows in answers))

@@ -1,6 +1,7 @@
 """scripts/paired_runs.py: two runs' answers to the same instructions, counted pair by pair."""
 
 import importlib.util
+import json
 import math
 import pathlib
 
@@ -59,3 +60,12 @@ def test_the_zoomed_mosaics_are_paired_by_their_zoomed_answers():
                     "only_candidate": 1, "only_baseline": 1, "mcnemar_z": 0.0}
     with pytest.raises(RunError, match="score the run with evaluate --mosaic_zoom"):
         paired_runs.instruction_results(rows([True, False]), zoomed=True)
+
+
+def test_an_answers_file_is_read_as_a_side(tmp_path):
+    written = rows([True, False, True])
+    path = tmp_path / "answers.jsonl"
+    path.write_text("".join(json.dumps(row) + "\n" for row in written))
+    assert paired_runs.answers_of(path, None, "ignored") == written
+    with pytest.raises(RunError, match="holds no checkpoint"):
+        paired_runs.answers_of(tmp_path / "not_a_run", None, "cornell-x")
