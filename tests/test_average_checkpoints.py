@@ -53,10 +53,10 @@ def assert_mean(folder, checkpoints):
 
 def test_the_tail_of_one_run_is_averaged(runs, tmp_path):
     out = tmp_path / "tail"
-    done = run_module("kosmos_jax.workdir.average", f"--workdirs={runs[0]}", "--steps=1,2", f"--out={out}")
+    done = run_module("kosmos_jax.workdir.average", f"--workdirs={runs[0]}", "--steps=2,1", f"--out={out}")
     assert done.returncode == 0, done.stderr[-3000:]
     assert f"the mean of 2 checkpoints written to {out}" in done.stdout
-    assert_mean(out, [(runs[0], 1), (runs[0], 2)])
+    assert_mean(out, [(runs[0], 2), (runs[0], 1)])
     assert json.loads((out / "kosmos_e.json").read_text())["step"] == 2
 
 

@@ -80,7 +80,8 @@ def average_checkpoints(workdirs: list[str], steps: list[int] | None, folder) ->
             trees.append(params)
             averaged.append({"workdir": str(run.workdir.resolve()), "step": int(step)})
             print(f"read step {step} of {run.workdir}", flush=True)
-    write_exported(runs[0], averaged[len(steps or [None]) - 1]["step"], mean_params(trees), folder,
+    first_run = averaged[:len(steps or [None])]
+    write_exported(runs[0], max(entry["step"] for entry in first_run), mean_params(trees), folder,
                    averaged_from=averaged)
     return averaged
 
