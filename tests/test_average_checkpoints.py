@@ -9,6 +9,7 @@ import pytest
 from flax import nnx
 
 from kosmos_jax.models import weights
+from kosmos_jax.workdir import average
 from kosmos_jax.workdir.run import open_run
 from user_commands import run_module, train_tiny
 
@@ -84,10 +85,10 @@ def test_another_model_is_refused(runs, tmp_path):
     (["--workdirs={0},{1}", "--out={1}"], "is not an empty folder"),
     (["--workdirs={0},missing_run"], "missing_run"),
 ])
-def test_bad_input_gives_one_clear_error(runs, tmp_path, arguments, message):
+def test_bad_input_gives_one_clear_error(runs, tmp_path, capsys, arguments, message):
     given = [a.format(runs[0], runs[1]) for a in arguments]
     if not any(a.startswith("--out=") for a in given):
         given.append(f"--out={tmp_path / 'out'}")
-    done = run_module("kosmos_jax.workdir.average", *given)
-    assert done.returncode == 2, done.stdout[-2000:]
-    assert message in done.stderr and "Traceback" not in done.stderr
+    assert average.main(given) == 2
+    error = capsys.readouterr().err
+    assert message in error and "Traceback" not in error, error
