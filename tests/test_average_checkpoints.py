@@ -81,7 +81,7 @@ def test_another_model_is_refused(runs, tmp_path):
     (["--workdirs={0},{0}"], "a workdir is named twice"),
     (["--workdirs={0}", "--steps=2,2"], "a step is named twice"),
     (["--workdirs={0}", "--steps=1,x"], "--steps: 'x' is not a step number"),
-    (["--workdirs={0}", "--steps=1,7"], "7"),
+    (["--workdirs={0}", "--steps=1,7"], "has no checkpoint of step 7"),
     (["--workdirs={0},{1}", "--out={1}"], "is not an empty folder"),
     (["--workdirs={0},missing_run"], "missing_run"),
 ])

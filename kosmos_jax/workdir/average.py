@@ -25,22 +25,11 @@ from kosmos_jax.workdir.files import TOKENIZER_FILE
 from kosmos_jax.workdir.run import open_run
 
 
-def mean_params(trees: list):
-    """The leafwise mean of parameter trees of one structure, summed in float32 and cast back to each leaf's dtype."""
-    if not trees:
-        raise ValueError("no parameters to average")
-    structure = jax.tree.structure(trees[0])
-    for tree in trees[1:]:
-        if jax.tree.structure(tree) != structure:
-            raise ValueError("the checkpoints' parameters differ in structure")
-
-    def mean(*leaves):
-        if any(leaf.shape != leaves[0].shape for leaf in leaves):
-            raise ValueError(f"the checkpoints' parameters differ in shape: {[leaf.shape for leaf in leaves]}")
-        total = sum(leaf.astype(jnp.float32) for leaf in leaves)
-        return (total / len(leaves)).astype(leaves[0].dtype)
-
-    return jax.tree.map(mean, *trees)
+def add_float32(total, params):
+    """`total` + `params`, leafwise in float32 (`total` None: `params` in float32)."""
+    if total is None:
+        return jax.tree.map(lambda leaf: leaf.astype(jnp.float32), params)
+    return jax.tree.map(lambda kept, leaf: kept + leaf.astype(jnp.float32), total, params)
 
 
 def same_model_runs(workdirs: list[str]) -> list:
@@ -73,16 +62,17 @@ def average_checkpoints(workdirs: list[str], steps: list[int] | None, folder) ->
     check_new_folder(folder)
     runs = same_model_runs(workdirs)
     mesh = one_device_mesh()
-    trees, averaged = [], []
-    for run in runs:
+    total, averaged = None, []
+    for run in runs:  # one checkpoint in memory at a time, beside the float32 sum
         for wanted in steps or [None]:
             step, params = run.params(wanted, mesh)
-            trees.append(params)
+            dtypes = jax.tree.map(lambda leaf: leaf.dtype, params)
+            total = add_float32(total, params)
             averaged.append({"workdir": str(run.workdir.resolve()), "step": int(step)})
             print(f"read step {step} of {run.workdir}", flush=True)
-    first_run = averaged[:len(steps or [None])]
-    write_exported(runs[0], max(entry["step"] for entry in first_run), mean_params(trees), folder,
-                   averaged_from=averaged)
+    mean = jax.tree.map(lambda kept, dtype: (kept / len(averaged)).astype(dtype), total, dtypes)
+    newest_of_first = max(entry["step"] for entry in averaged if entry["workdir"] == averaged[0]["workdir"])
+    write_exported(runs[0], newest_of_first, mean, folder, averaged_from=averaged)
     return averaged
 
 
