@@ -57,7 +57,7 @@ def experiments_command(options, command: str) -> int:
     from kosmos_jax.experiments import carried
     from kosmos_jax.experiments.aggregate import write_results
     from kosmos_jax.experiments.checks import check_experiment
-    from kosmos_jax.experiments.runner import SweepStopped, run_experiment
+    from kosmos_jax.experiments.runner import SweepStopped, run_experiment, sigterm_stops_the_sweep
     from kosmos_jax.experiments.spec import ExperimentError
 
     config = options.config
@@ -76,7 +76,8 @@ def experiments_command(options, command: str) -> int:
                   f"{options.workdir}/results.json and table.md ({len(results['missing'])} not run yet)")
         else:
             try:
-                summary = run_experiment(config, options.workdir, command=command)
+                with sigterm_stops_the_sweep():
+                    summary = run_experiment(config, options.workdir, command=command)
             except SweepStopped as error:  # the folds finished before the stop are still carried out
                 stopped = error
         if options.records_to:

@@ -8,9 +8,9 @@ for the trained step are read, not decoded again), the no-learning predictors on
 instructions (KOSMOS-E arms), then the record fold.json (with, when the arm's data.build holds out a
 validation split, the trainer's last validation figures under "validation"). A fold with a record is
 skipped. A fold that fails is reported and the sweep goes on; a SIGTERM'd training stops the sweep (SweepStopped) after
-the trainer's checkpoint, and the same command resumes; a SIGTERM outside a training (between folds, while a
-dataset is built or a fold scored) stops it at once, by the same exception, so the command still copies out
-the folds it finished. Every fold's config is checked (checks.py:
+the trainer's checkpoint, and the same command resumes; inside sigterm_stops_the_sweep (as the command runs it), a
+SIGTERM outside a training (between folds, while a dataset is built or a fold scored) stops it at once, by the
+same exception, so the command still copies out the folds it finished. Every fold's config is checked (checks.py:
 model shapes, optimiser, batch layout, data settings) and each arm's data source and KOSMOS-2
 folder looked up before anything trains, so a bad arm fails at once. A fold's seconds are those of
 the invocation that finished it (its record's train.resumed_from says whether an earlier one began it). `train` and `evaluate` are arguments so tests can count calls.
@@ -176,29 +176,28 @@ def run_experiment(config, workdir, *, train: Callable | None = None, evaluate: 
         check_startable(arm, name)
     trained, skipped, failed = 0, 0, []
     say(f"[{now()}] experiment {config.name}: {len(chosen)} folds in {root}")
-    with sigterm_stops_the_sweep():
-        for number, run in enumerate(chosen, 1):
-            where = run.workdir(root)
-            record = records.read_record(where)
-            if record is not None:
-                spec.check_recipe(record, fold_configs[run], where / records.FOLD_FILE)
-                say(f"[{now()}] ({number}/{len(chosen)}) {run.name} done, skipped ({where})")
-                skipped += 1
-                continue
-            say(f"[{now()}] ({number}/{len(chosen)}) {run.name}: training in {where}")
-            try:
-                record = run_fold(config, run, fold_configs[run], root, train=train, evaluate=evaluate, command=command)
-            except SweepStopped:
-                raise
-            except Exception as error:  # noqa: BLE001 - one broken fold must not stop a night's sweep
-                say(f"[{now()}] ({number}/{len(chosen)}) {run.name} FAILED: {type(error).__name__}: {error}")
-                say("".join(traceback.format_exception(error, limit=-3)).rstrip())
-                failed.append((run.name, f"{type(error).__name__}: {error}"))
-                continue
-            finally:
-                jax.clear_caches()  # each arm compiles its own programs; keep memory flat over a long sweep
-            trained += 1
-            say(f"[{now()}] ({number}/{len(chosen)}) {run.name} finished: {finished_line(record)}")
+    for number, run in enumerate(chosen, 1):
+        where = run.workdir(root)
+        record = records.read_record(where)
+        if record is not None:
+            spec.check_recipe(record, fold_configs[run], where / records.FOLD_FILE)
+            say(f"[{now()}] ({number}/{len(chosen)}) {run.name} done, skipped ({where})")
+            skipped += 1
+            continue
+        say(f"[{now()}] ({number}/{len(chosen)}) {run.name}: training in {where}")
+        try:
+            record = run_fold(config, run, fold_configs[run], root, train=train, evaluate=evaluate, command=command)
+        except SweepStopped:
+            raise
+        except Exception as error:  # noqa: BLE001 - one broken fold must not stop a night's sweep
+            say(f"[{now()}] ({number}/{len(chosen)}) {run.name} FAILED: {type(error).__name__}: {error}")
+            say("".join(traceback.format_exception(error, limit=-3)).rstrip())
+            failed.append((run.name, f"{type(error).__name__}: {error}"))
+            continue
+        finally:
+            jax.clear_caches()  # each arm compiles its own programs; keep memory flat over a long sweep
+        trained += 1
+        say(f"[{now()}] ({number}/{len(chosen)}) {run.name} finished: {finished_line(record)}")
     results = write_results(config, root, command)
     say(f"[{now()}] wrote {root / 'results.json'} and {root / 'table.md'}")
     return {"trained": trained, "skipped": skipped, "failed": failed, "results": results}
