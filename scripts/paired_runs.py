@@ -21,7 +21,7 @@ import math
 import pathlib
 import sys
 
-from kosmos_jax.diagnostics.answer_errors import read_answers
+from kosmos_jax.diagnostics.answer_errors import answer_rows, read_answers
 from kosmos_jax.workdir.checkpoints import chosen_step
 from kosmos_jax.workdir.files import RunError
 
@@ -68,7 +68,7 @@ def paired(baseline: dict, candidate: dict) -> list[dict]:
 def answers_of(path: pathlib.Path, step: int | None, scored: str) -> list[dict]:
     """The answer rows of an answers.jsonl file, or of a run's workdir at `step` (None: its newest) on `scored`."""
     if path.is_file():
-        return [json.loads(line) for line in path.read_text().splitlines() if line]
+        return answer_rows(path)
     return read_answers(path, chosen_step(path, step), scored)
 
 

@@ -114,6 +114,11 @@ def read_answers(workdir: pathlib.Path, step: int, scored: str = "") -> list[dic
         source = " --cornell=..." if scored else ""
         raise RunError(f"no {path}: score the run first with python -m kosmos_jax.evaluate --workdir={workdir} "
                        f"--step={step}{source}")
+    return answer_rows(path)
+
+
+def answer_rows(path: pathlib.Path) -> list[dict]:
+    """The rows of an answers.jsonl that evaluate wrote."""
     return [json.loads(line) for line in path.read_text().splitlines() if line]
 
 
