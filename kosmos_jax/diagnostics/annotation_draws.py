@@ -70,14 +70,20 @@ def view_matrix() -> np.ndarray:
     return np.asarray(matrices[0])
 
 
-def in_view(draws: Sequence[Sequence[np.ndarray]], matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(grasps [D, MAX_POSITIVES, 5] in view pixels, mask [D, MAX_POSITIVES]) of draws of photo grasps; a grasp
-    whose centre leaves the view is dropped, as the evaluation drops it."""
+def padded(draws: Sequence[Sequence[np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """(grasps [D, MAX_POSITIVES, 5], mask [D, MAX_POSITIVES]) of draws of grasps (x, y, w, h, theta), as drawn."""
     grasps = np.zeros((len(draws), MAX_POSITIVES, 5), np.float32)
     mask = np.zeros((len(draws), MAX_POSITIVES), bool)
     for row, draw in enumerate(draws):
         grasps[row, :len(draw)] = np.asarray(draw, np.float32).reshape(-1, 5)
         mask[row, :len(draw)] = True
+    return grasps, mask
+
+
+def in_view(draws: Sequence[Sequence[np.ndarray]], matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(grasps [D, MAX_POSITIVES, 5] in view pixels, mask [D, MAX_POSITIVES]) of draws of photo grasps; a grasp
+    whose centre leaves the view is dropped, as the evaluation drops it."""
+    grasps, mask = padded(draws)
     moved, kept, _ = move_grasps(jnp.asarray(grasps), jnp.asarray(mask),
                                  jnp.broadcast_to(jnp.asarray(matrix), (len(draws), 2, 3)), HONEST_TEST_CROP.output_size)
     return np.asarray(moved), np.asarray(kept)
