@@ -67,7 +67,8 @@ def data_config(**changes) -> ml_collections.ConfigDict:
     # seed, seed + 1, ... (train/scene_stream.py); the built dataset then gives the tokenizer, validation and test.
     # kinds: the stream's instruction kinds as data.build.kinds takes them ("non,multi"); "" = the build's;
     # examples > 0: keep that many of a chunk's examples, drawn at random (more scenes for the same steps)
-    data.stream = ml_collections.ConfigDict(dict(photos=0, seed=10_000, kinds="", examples=0))
+    # targets "best": each scene keeps only its expected best grasp (sources/synthetic/best_grasps.py); "": its draw
+    data.stream = ml_collections.ConfigDict(dict(photos=0, seed=10_000, kinds="", examples=0, targets=""))
     # "non=3": each training example of that kind drawn 3 times an epoch, the other kinds' once (the mix the
     # trainer sees, from the same build); "" = every example once. Not with the scene stream.
     data.kind_repeats = ""

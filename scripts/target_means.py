@@ -21,7 +21,8 @@ import sys
 
 import numpy as np
 
-from kosmos_jax.diagnostics.annotation_draws import hit_rates, in_view, view_matrix
+from kosmos_jax.diagnostics.annotation_draws import in_view, view_matrix
+from kosmos_jax.sources.synthetic.best_grasps import hit_rates
 from kosmos_jax.diagnostics.categories import synthetic_header
 from kosmos_jax.sources.synthetic import scenes
 from kosmos_jax.text.target_rows import consensus_row, top_row

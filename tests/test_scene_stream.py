@@ -214,3 +214,22 @@ def test_the_stream_records_a_chunk_cap_only_when_set():
     assert "examples" not in trainer.stream_settings(data)  # the description of older runs
     data.stream.examples = 96
     assert trainer.stream_settings(data)["examples"] == 96
+
+
+def test_best_targets_leave_each_scene_one_grasp_and_are_recorded_only_when_set(stream_parts):
+    """Oracle: the same chunk from the scenes' own draws, whose single-photo examples answer with several grasps;
+    with targets="best" every example answers with one grasp a photo (four on a mosaic's photos, at most)."""
+    own = stream(stream_parts).chunk(0)
+    best = stream(stream_parts, targets="best").chunk(0)
+    single = lambda chunk: [row for row, label in enumerate(chunk.labels) if label.endswith("(non)")]
+    assert single(own) and single(best)
+    assert max(own.arrays["answers_mask"][row].sum() for row in single(own)) > 1
+    assert {int(best.arrays["answers_mask"][row].sum()) for row in single(best)} == {1}
+    assert max(best.arrays["answers_mask"].sum(axis=1)) <= 4
+    with pytest.raises(ValueError, match="targets='top'"):
+        stream(stream_parts, targets="top")
+    data = ml_collections.ConfigDict(dict(source="synthetic", synthetic_seed=1000,
+                                          stream=dict(photos=8, seed=1001, kinds="", examples=0, targets="")))
+    assert "targets" not in trainer.stream_settings(data)  # the description of older runs
+    data.stream.targets = "best"
+    assert trainer.stream_settings(data)["targets"] == "best"

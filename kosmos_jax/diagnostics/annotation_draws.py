@@ -48,15 +48,14 @@ from kosmos_jax.dataset.views import HONEST_TEST_CROP, crop_matrices
 from kosmos_jax.diagnostics.answer_errors import define_scored_run_flags
 from kosmos_jax.diagnostics.categories import synthetic_header
 from kosmos_jax.diagnostics.part_oracles import answered_grasps, scored_folder_answers
-from kosmos_jax.metrics.success import grasp_success
 from kosmos_jax.scoring.instructions import Instruction, group_instructions, text
 from kosmos_jax.sources.synthetic import scenes
+from kosmos_jax.sources.synthetic.best_grasps import MAX_POSITIVES, hit_rates, padded
 from kosmos_jax.sources.synthetic.render import HEIGHT, WIDTH
 from kosmos_jax.text.target_rows import consensus_row
 from kosmos_jax.workdir.files import RunError
 
 SCORES = ("model", "model_expected", "target_draw", "parts_draw", "consensus_draw", "best_expected", "best")
-MAX_POSITIVES = max(scenes.POSITIVES[0])
 # the folder's corners are written with 3 decimals (scenes.format_rectangles): a centre moves by at most 5e-4 px
 WRITTEN_CENTRE_PX = 1e-2
 PHOTO_SETS = ("candidates", "selection", "estimate")  # three independent sets of draws a photo
@@ -70,16 +69,6 @@ def view_matrix() -> np.ndarray:
     return np.asarray(matrices[0])
 
 
-def padded(draws: Sequence[Sequence[np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    """(grasps [D, MAX_POSITIVES, 5], mask [D, MAX_POSITIVES]) of draws of grasps (x, y, w, h, theta), as drawn."""
-    grasps = np.zeros((len(draws), MAX_POSITIVES, 5), np.float32)
-    mask = np.zeros((len(draws), MAX_POSITIVES), bool)
-    for row, draw in enumerate(draws):
-        grasps[row, :len(draw)] = np.asarray(draw, np.float32).reshape(-1, 5)
-        mask[row, :len(draw)] = True
-    return grasps, mask
-
-
 def in_view(draws: Sequence[Sequence[np.ndarray]], matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(grasps [D, MAX_POSITIVES, 5] in view pixels, mask [D, MAX_POSITIVES]) of draws of photo grasps; a grasp
     whose centre leaves the view is dropped, as the evaluation drops it."""
@@ -87,14 +76,6 @@ def in_view(draws: Sequence[Sequence[np.ndarray]], matrix: np.ndarray) -> tuple[
     moved, kept, _ = move_grasps(jnp.asarray(grasps), jnp.asarray(mask),
                                  jnp.broadcast_to(jnp.asarray(matrix), (len(draws), 2, 3)), HONEST_TEST_CROP.output_size)
     return np.asarray(moved), np.asarray(kept)
-
-
-def hit_rates(answers: np.ndarray, grasps: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """[A] the share of draws each answer (x, y, theta) [A, 3] hits, honest protocol, against draws [D, M, 5]."""
-    count, draws = len(answers), len(grasps)
-    pred = np.repeat(answers, draws, axis=0)
-    hits = grasp_success(pred, np.tile(grasps, (count, 1, 1)), np.tile(mask, (count, 1)), wh_policy="per_gt")
-    return np.asarray(hits).reshape(count, draws).mean(axis=1)
 
 
 def photo_draws(seed: int, index: int, draws: int, draw_seed: int, matrix: np.ndarray,

@@ -12,6 +12,8 @@ is made in a background thread while the current one is read.
 An example's `example_index` is chunk * CHUNK_STRIDE + its place in the chunk: unique across the
 stream, so dropout masks (drawn from it) never repeat either. Its `category` and `colour` are the labels
 of its target object's category and main colour (`tower_labels`), which only scenes made here can give.
+With targets="best" each scene keeps only its expected best grasp (sources/synthetic/best_grasps.py) before its
+views are made: targets that do not move from draw to draw, which only scenes made here can give too.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import tempfile
 import numpy as np
 
 from kosmos_jax.sources.synthetic import scenes
+from kosmos_jax.sources.synthetic.best_grasps import keep_best_grasps
 from kosmos_jax.dataset import build as build_lib
 from kosmos_jax.dataset import samples as sample_stage
 from kosmos_jax.dataset.inputs import object_words, read_photos, word_source
@@ -35,6 +38,7 @@ from kosmos_jax.text import layout
 from kosmos_jax.train.tower_labels import label_of
 
 CHUNK_STRIDE = 10**7  # more examples than any chunk makes
+TARGETS = ("", "best")  # "": the annotation's own draw
 
 
 def photo_labels(metadata: dict) -> dict[str, dict[str, int]]:
@@ -51,7 +55,7 @@ class Chunk:
     labels: list  # "photo ids (kind)" of each example, same order
 
 
-def scene_examples(build_config: build_lib.BuildConfig, photos: int, scene_seed: int):
+def scene_examples(build_config: build_lib.BuildConfig, photos: int, scene_seed: int, targets: str = ""):
     """(the (sample, text example) pairs of `photos` fresh scenes of `scene_seed` as `build_config`'s training
     split makes them, in its order; {photo id: {label kind: label}}). The scenes' files are gone on return."""
     config = dataclasses.replace(build_config, seed=scene_seed)
@@ -59,6 +63,8 @@ def scene_examples(build_config: build_lib.BuildConfig, photos: int, scene_seed:
     with tempfile.TemporaryDirectory(prefix="kosmos_jax-stream-") as folder:
         source = pathlib.Path(folder) / "scenes"
         scenes.write_dataset(source, photos=photos, seed=scene_seed)
+        if targets == "best":
+            keep_best_grasps(source)
         photo_list, image_files = read_photos(source)
         words_from = word_source(source, None)  # the scenes' metadata, read once for the words and the labels
         words = object_words(words_from, photo_list, image_files)
@@ -72,11 +78,11 @@ def scene_examples(build_config: build_lib.BuildConfig, photos: int, scene_seed:
 
 
 def make_chunk(build_config: build_lib.BuildConfig, tokenizer, photos: int, scene_seed: int, number: int,
-               examples: int = 0) -> Chunk:
+               examples: int = 0, targets: str = "") -> Chunk:
     """Chunk `number` of the stream: `photos` scenes of `scene_seed`, as training examples of `build_config`;
     `examples` > 0 keeps that many of them (or all, if fewer fit max_length), drawn at random."""
     format_config = build_config.format_config()
-    made_examples, object_labels = scene_examples(build_config, photos, scene_seed)
+    made_examples, object_labels = scene_examples(build_config, photos, scene_seed, targets)
     if examples:  # tokens made in a random order until `examples` fit: the others cost nothing
         made_examples = list(made_examples)
         made_examples = [made_examples[i] for i in np.random.default_rng([scene_seed, number, examples])
@@ -108,12 +114,15 @@ class SceneStream:
     """Endless host batches of this process's rows; get_state() / set_state() for checkpoints."""
 
     def __init__(self, build_config: build_lib.BuildConfig, tokenizer, *, photos: int, seed: int,
-                 global_batch: int, process_index: int = 0, process_count: int = 1, examples: int = 0):
+                 global_batch: int, process_index: int = 0, process_count: int = 1, examples: int = 0,
+                 targets: str = ""):
         if global_batch % process_count:
             raise ValueError(f"train.batch_size={global_batch} is not divisible by the {process_count} processes")
         if examples < 0:
             raise ValueError(f"config.data.stream.examples={examples} must be >= 0 (0: every example a chunk makes)")
-        self._make = lambda number: make_chunk(build_config, tokenizer, photos, seed + number, number, examples)
+        if targets not in TARGETS:
+            raise ValueError(f"config.data.stream.targets={targets!r}: expected one of {TARGETS}")
+        self._make = lambda number: make_chunk(build_config, tokenizer, photos, seed + number, number, examples, targets)
         self.global_batch, self.process_index, self.process_count = global_batch, process_index, process_count
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="scene-stream")
         self._chunk_number, self._batch = 0, 0

@@ -203,7 +203,7 @@ def evaluate(eval_step, params, split, config, sharding) -> dict:
 
 
 def stream_settings(data_config) -> dict | None:
-    """{"photos", "seed"[, "kinds"][, "examples"]} of config.data.stream when training reads scenes made on
+    """{"photos", "seed"[, "kinds"][, "examples"][, "targets"]} of config.data.stream when training reads scenes made on
     the fly, else None. "kinds" (resolved, e.g. ["non", "multi-name", ...]) is there only when
     config.data.stream.kinds gives the stream other instruction kinds than the build's, "examples" only when
     config.data.stream.examples caps a chunk's examples. The stream's seeds must all lie above the
@@ -225,6 +225,8 @@ def stream_settings(data_config) -> dict | None:
         settings["kinds"] = list(single) + [sample_stage.MULTI_PREFIX + k for k in multi]
     if stream.get("examples"):  # left out at the default, as for kinds
         settings["examples"] = int(stream.examples)
+    if stream.get("targets"):  # likewise
+        settings["targets"] = str(stream.targets)
     return settings
 
 
@@ -245,7 +247,8 @@ def scene_batches(config, stream: dict, tokenizer, process_index: int = 0,
         build = dataclasses.replace(build, kinds=tuple(stream["kinds"]))
     return scene_stream.SceneStream(build, tokenizer, photos=stream["photos"], seed=stream["seed"],
                                     global_batch=config.train.batch_size, process_index=process_index,
-                                    process_count=process_count, examples=stream.get("examples", 0))
+                                    process_count=process_count, examples=stream.get("examples", 0),
+                                    targets=stream.get("targets", ""))
 
 
 def kosmos_task(config, mesh, tx, schedule) -> Task:
