@@ -305,7 +305,7 @@ ADDED_AT = {"init_step": -1, "data.build.tokenizer_scheme": "fairseq", "data.str
             "train.answer_pointing_loss": 0.0, "data.validation_fraction": 0.0,
             "data.stream.examples": 0, "train.grasp_eval_at_end": True,
             "model.remat_policy": "full", "model.dropout_mask_bits": 32, "init_resample_positions": False,
-            "data.kind_repeats": ""}
+            "data.kind_repeats": "", "data.stream.targets": ""}
 
 
 def recipe(fold_config) -> str:
