@@ -113,3 +113,8 @@ def test_the_best_grasp_of_a_bottle_hits_more_fresh_draws_than_its_annotations_g
     chosen = best_grasp_folder.hit_rates(grasp[None, [0, 1, 4]], *fresh)[0]
     assert chosen > best_grasp_folder.hit_rates(drawn[:, [0, 1, 4]], *fresh).mean() + 0.05
     assert 0.0 < rate <= 1.0
+
+
+def test_a_photo_whose_draws_hold_no_grasp_is_refused_by_name():
+    with pytest.raises(ValueError, match="photo 0 of seed 0: none of 0 draws"):
+        best_grasp_folder.best_grasp(0, 0, draws=0)

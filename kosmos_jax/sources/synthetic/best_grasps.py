@@ -54,6 +54,8 @@ def best_grasp(seed: int, index: int, draws: int = 24, candidates: int = 96) -> 
         drawn, parts_of = scenes.draw_positives(rng, posed)
         grasps.extend(drawn)
         parts.extend(parts_of)
+    if not grasps:
+        raise ValueError(f"photo {index} of seed {seed}: none of {draws} draws of its annotation holds a grasp")
     chosen = rng.permutation(len(grasps))[:candidates]
     pool = np.asarray(grasps, np.float32).reshape(-1, 5)[chosen]
     rates = hit_rates(pool[:, [0, 1, 4]], *padded([scenes.draw_positives(rng, posed)[0] for _ in range(draws)]))
