@@ -17,7 +17,7 @@ import sys
 import numpy as np
 
 from kosmos_jax.diagnostics.categories import synthetic_header
-from kosmos_jax.sources.synthetic.best_grasps import best_grasp, hit_rates, keep_best_grasps, padded  # noqa: F401
+from kosmos_jax.sources.synthetic.best_grasps import keep_best_grasps
 
 
 def write_folder(source, out, draws: int = 40, candidates: int = 160) -> list[float]:

@@ -1,4 +1,5 @@
-"""scripts/answer_parts.py, target_means.py and best_grasp_folder.py: the single-photo target probes of issue 22."""
+"""scripts/answer_parts.py, target_means.py, best_grasp_folder.py and sources/synthetic/best_grasps.py: the single-photo
+target probes of issue 22."""
 
 import importlib.util
 import math
@@ -7,7 +8,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from kosmos_jax.sources.synthetic import scenes
+from kosmos_jax.sources.synthetic import best_grasps, scenes
 
 SCRIPTS = pathlib.Path(__file__).resolve().parents[1] / "scripts"
 
@@ -104,17 +105,17 @@ def test_the_best_grasp_of_a_bottle_hits_more_fresh_draws_than_its_annotations_g
     # seed 0's photo 0 is a bottle whose grasps lie on its body and its neck: where an annotation's grasps differ,
     # the chosen one should hit more of 100 new draws than the average grasp of 20 others (0.64 against 0.52 here;
     # a choice at random would sit at the average, the worst candidate far below it)
-    grasp, _, rate = best_grasp_folder.best_grasp(0, 0, draws=16, candidates=48)
+    grasp, _, rate = best_grasps.best_grasp(0, 0, draws=16, candidates=48)
     _, posed = scenes.posed_photo(0, 0)
     rng = np.random.default_rng(11)
-    fresh = best_grasp_folder.padded([scenes.draw_positives(rng, posed)[0] for _ in range(100)])
+    fresh = best_grasps.padded([scenes.draw_positives(rng, posed)[0] for _ in range(100)])
     drawn = np.concatenate([np.asarray(scenes.draw_positives(rng, posed)[0], np.float32).reshape(-1, 5)
                             for _ in range(20)])
-    chosen = best_grasp_folder.hit_rates(grasp[None, [0, 1, 4]], *fresh)[0]
-    assert chosen > best_grasp_folder.hit_rates(drawn[:, [0, 1, 4]], *fresh).mean() + 0.05
+    chosen = best_grasps.hit_rates(grasp[None, [0, 1, 4]], *fresh)[0]
+    assert chosen > best_grasps.hit_rates(drawn[:, [0, 1, 4]], *fresh).mean() + 0.05
     assert 0.0 < rate <= 1.0
 
 
 def test_a_photo_whose_draws_hold_no_grasp_is_refused_by_name():
     with pytest.raises(ValueError, match="photo 0 of seed 0: none of 0 draws"):
-        best_grasp_folder.best_grasp(0, 0, draws=0)
+        best_grasps.best_grasp(0, 0, draws=0)
