@@ -119,3 +119,18 @@ def test_the_best_grasp_of_a_bottle_hits_more_fresh_draws_than_its_annotations_g
 def test_a_photo_whose_draws_hold_no_grasp_is_refused_by_name():
     with pytest.raises(ValueError, match="photo 0 of seed 0: none of 0 draws"):
         best_grasps.best_grasp(0, 0, draws=0)
+
+
+def test_category_fit_pools_the_seeds_hits_and_correlates_them_with_each_rules_scores():
+    category_fit = script("category_fit")
+    parts = [{"categories": {"Mug": {"graspable_with_truth:hit": 1, "off_object:miss": 3},
+                             "Tape": {"off_object:miss": 4}, "Can": {"graspable_with_truth:hit": 4}}},
+             {"categories": {"Mug": {"graspable_with_truth:hit": 3, "graspable_with_truth:miss": 1},
+                             "Tape": {"off_object:hit": 2, "off_object:miss": 2}, "Can": {"graspable_with_truth:hit": 4}}}]
+    assert category_fit.pooled_accuracy(parts) == {"Can": 100.0, "Mug": 50.0, "Tape": 25.0}
+    means = {"rules": {"random": {}, "top": {}},
+             "categories": {c: {"random": {"fitted": f, "mean": m}, "top": {"fitted": 10.0 * f, "mean": -m}}
+                            for c, f, m in (("Can", 1.0, 90.0), ("Mug", 2.0, 60.0), ("Tape", 3.0, 35.0))}}
+    fit = category_fit.category_fit(means, parts)["pearson_r"]
+    assert fit["random.mean"] == -fit["top.mean"] and fit["random.mean"] > 0.99  # 100, 50, 25 against 90, 60, 35
+    assert fit["random.fitted"] == fit["top.fitted"] == -0.9820  # a scale leaves r as it was
